@@ -1,0 +1,1 @@
+"""MEMSLidarDataset, augmentation, voxelisation and sim/real mixing (OpenPCDet's DatasetTemplate contract)."""

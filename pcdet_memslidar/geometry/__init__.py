@@ -1,0 +1,1 @@
+"""Box geometry, coordinate transforms, rotated IoU and NMS."""

@@ -1,0 +1,1 @@
+"""Readers and writers: KITTI layout, custom layout, Blickfeld .bfpc, PCD / PLY / NPY, CVAT import."""

@@ -1,0 +1,1 @@
+"""SECOND modules under their OpenPCDet names and state-dict layout."""
