@@ -1,0 +1,279 @@
+"""OpenPCDet-compatible YAML configs, with paths that work from any working directory.
+
+Semantics (as OpenPCDet's pcdet/config.py): a YAML file becomes an EasyDict; `_BASE_CONFIG_` may appear in any
+mapping: the base file is loaded first and the mapping's own keys are merged onto it recursively (mappings merge,
+lists and scalars replace); a mapping with `_BASE_CONFIG_` replaces whatever an outer base put under its key.
+`cfg_from_list(['A.B', 'VALUE', ...], cfg)` overrides existing keys with YAML-parsed values.
+
+The fix (OpenPCDet #1185): `_BASE_CONFIG_` and `DATA_PATH` values resolve relative to the file that wrote them
+first, then to the working directory (`resolve_path`); after loading they hold absolute paths.
+
+Profiles: `PROFILE` (default 'paper') names an entry of `PROFILES: {quick: {...}, smoke: {...}}` whose overrides
+`apply_profile` merges onto the config; 'paper' is the config as written unless PROFILES defines it.
+
+Public API:
+    cfg_from_yaml_file(cfg_file, merge_to=None) -> EasyDict
+    cfg_from_list(cfg_list, config) -> None
+    merge_new_config(config, new_config, cfg_file=None) -> EasyDict
+    apply_profile(config, profile=None) -> EasyDict
+    load_config(cfg_file, set_cfgs=None, profile=None) -> EasyDict   (yaml + profile + --set, names set)
+    resolve_path(base_file, value) -> Path
+    experiment_group(cfg_file) -> str
+    log_config_to_file(config, pre='cfg', logger=None) -> None
+    cfg: the module-level EasyDict OpenPCDet tools import (ROOT_DIR, LOCAL_RANK)
+"""
+from __future__ import annotations
+
+import difflib
+import logging
+import re
+from pathlib import Path
+
+import yaml
+from easydict import EasyDict
+
+from pcdet_memslidar.errors import ConfigError
+
+BASE_KEY = "_BASE_CONFIG_"
+PATH_KEYS = ("DATA_PATH",)  # string values resolved relative to the file that wrote them
+DEFAULT_PROFILE = "paper"
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML safe loader that also reads `1e-4` (no dot) as a float, as a reader of a config would expect."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+def _parse_yaml(text: str, source: str):
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        problem = getattr(error, "problem", None) or error
+        raise ConfigError(f"{source}{line}: invalid YAML ({problem}); fix the syntax") from None
+
+
+def resolve_path(base_file: str | Path | None, value: str | Path) -> Path:
+    """Absolute path of `value`: as is if absolute, else relative to `base_file`'s folder if it exists there,
+    else relative to the working directory if it exists there, else relative to `base_file`'s folder (or the
+    working directory when `base_file` is None)."""
+    value = Path(value).expanduser()
+    if value.is_absolute():
+        return value
+    candidates = [Path.cwd() / value]
+    if base_file is not None:
+        candidates.insert(0, Path(base_file).resolve().parent / value)
+    existing = next((path for path in candidates if path.exists()), candidates[0])
+    return existing.resolve()
+
+
+def _line_of(path: Path, needle: str) -> int | None:
+    """1-based number of the first line of `path` that contains `needle`, if any."""
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if needle in line:
+            return number
+    return None
+
+
+def _load_yaml_file(path: Path) -> dict:
+    mapping = _parse_yaml(path.read_text(encoding="utf-8"), str(path))
+    if mapping is None:
+        return {}
+    if not isinstance(mapping, dict):
+        raise ConfigError(f"{path}: a config file must be a YAML mapping (KEY: value), got {type(mapping).__name__}")
+    return mapping
+
+
+def _base_file(requester: Path | None, value, chain: tuple[Path, ...]) -> Path:
+    """Resolve a `_BASE_CONFIG_` value written in `requester`, checking that it exists and is not a cycle."""
+    who = str(requester) if requester is not None else "<in-memory config>"
+    if not isinstance(value, (str, Path)):
+        raise ConfigError(f"{who}: {BASE_KEY} must be a file path, got {value!r}")
+    path = resolve_path(requester, value)
+    if not path.is_file():
+        line = _line_of(requester, str(value)) if requester is not None and requester.is_file() else None
+        where = f"{who}:{line}" if line else who
+        places = f"{requester.parent} or {Path.cwd()}" if requester is not None else str(Path.cwd())
+        raise ConfigError(f"{where}: {BASE_KEY} '{value}' not found (looked relative to {places}); "
+                          f"fix the path in {who}")
+    if path in chain:
+        cycle = " -> ".join(str(p) for p in chain + (path,))
+        raise ConfigError(f"{who}: {BASE_KEY} cycle {cycle}; remove one of the includes")
+    return path
+
+
+def _merge(config: dict, new: dict) -> None:
+    """Merge expanded `new` into `config`: mappings merge, a mapping with its own base replaces, others replace."""
+    for key, value in new.items():
+        if isinstance(value, dict) and BASE_KEY not in value and isinstance(config.get(key), dict):
+            _merge(config[key], value)
+        else:
+            config[key] = value
+
+
+def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...]) -> EasyDict:
+    """`node` with every `_BASE_CONFIG_` loaded and every path key made absolute (relative to `cfg_file`)."""
+    if BASE_KEY in node:
+        base = _base_file(cfg_file, node[BASE_KEY], chain)
+        result = _expand(_load_yaml_file(base), base, chain + (base,))
+        result[BASE_KEY] = str(base)
+    else:
+        result = EasyDict()
+    own = EasyDict()
+    for key, value in node.items():
+        if key == BASE_KEY:
+            continue
+        if isinstance(value, dict):
+            value = _expand(value, cfg_file, chain)
+        elif key in PATH_KEYS and isinstance(value, str):
+            value = str(resolve_path(cfg_file, value))
+        own[key] = value
+    _merge(result, own)
+    return result
+
+
+def merge_new_config(config: EasyDict, new_config: dict, cfg_file: str | Path | None = None) -> EasyDict:
+    """Merge `new_config` (read from `cfg_file`, whose folder anchors its relative paths) into `config`."""
+    cfg_file = Path(cfg_file).resolve() if cfg_file is not None else None
+    chain = (cfg_file,) if cfg_file is not None else ()
+    _merge(config, _expand(new_config, cfg_file, chain))
+    return config
+
+
+def cfg_from_yaml_file(cfg_file: str | Path, merge_to: EasyDict | None = None) -> EasyDict:
+    """Load the YAML config `cfg_file` (with its bases) into `merge_to` (a new EasyDict if None) and return it."""
+    path = Path(cfg_file)
+    if not path.is_file():
+        raise ConfigError(f"{cfg_file}: config file not found (working directory {Path.cwd()})")
+    config = EasyDict() if merge_to is None else merge_to
+    return merge_new_config(config, _load_yaml_file(path), path)
+
+
+def _close(key: str, options) -> str:
+    matches = difflib.get_close_matches(key, [str(option) for option in options], n=3, cutoff=0.5)
+    return f"; did you mean {', '.join(matches)}?" if matches else f"; known keys: {', '.join(map(str, options))}"
+
+
+def _convert(text: str, current, key: str):
+    """The YAML value of `text`, converted to the type of the value it replaces."""
+    value = _parse_yaml(text, f"--set {key}")
+    if current is None or value is None or isinstance(current, str):
+        return text if isinstance(current, str) else value
+    if isinstance(current, bool) or isinstance(value, bool):
+        if type(current) is not type(value):
+            raise ConfigError(f"--set {key} {text}: expected {type(current).__name__}, got {text!r}")
+        return value
+    if isinstance(current, (int, float)):
+        if isinstance(value, int) or (isinstance(current, float) and isinstance(value, float)):
+            return type(current)(value)
+        raise ConfigError(f"--set {key} {text}: expected {type(current).__name__}, got {text!r}")
+    if isinstance(current, list):
+        if isinstance(value, str):  # OpenPCDet's comma form: --set A.LIST 1,2,3
+            value = [_parse_yaml(item, f"--set {key}") for item in value.split(",")]
+        if not isinstance(value, list):
+            value = [value]
+        return value
+    if isinstance(current, dict):
+        if isinstance(value, str):  # OpenPCDet's form: --set A.DICT KEY1:V1,KEY2:V2
+            pairs = [item.split(":", 1) for item in value.split(",")]
+            if any(len(pair) != 2 for pair in pairs):
+                raise ConfigError(f"--set {key} {text}: expected a mapping, e.g. '{{KEY: value}}' or KEY:value,...")
+            value = {name.strip(): _parse_yaml(item, f"--set {key}") for name, item in pairs}
+        if not isinstance(value, dict):
+            raise ConfigError(f"--set {key} {text}: expected a mapping")
+        for name in value:
+            if name not in current:
+                raise ConfigError(f"--set {key}: unknown key {key}.{name}{_close(name, current)}")
+        merged = EasyDict(current)
+        _merge(merged, EasyDict(value))
+        return merged
+    return value
+
+
+def cfg_from_list(cfg_list: list[str] | None, config: EasyDict) -> None:
+    """Apply `--set` overrides ['A.B', 'VALUE', ...] to existing keys of `config` (values parsed as YAML)."""
+    cfg_list = list(cfg_list or [])
+    if len(cfg_list) % 2:
+        raise ConfigError(f"--set needs KEY VALUE pairs, got an odd number of items: {cfg_list}")
+    for key, text in zip(cfg_list[0::2], cfg_list[1::2]):
+        node, parts = config, key.split(".")
+        for depth, part in enumerate(parts):
+            if not isinstance(node, dict) or part not in node:
+                parent = ".".join(parts[:depth]) or "the config"
+                options = list(node) if isinstance(node, dict) else []
+                raise ConfigError(f"--set {key}: unknown key '{part}' in {parent}{_close(part, options)}")
+            if depth < len(parts) - 1:
+                node = node[part]
+        node[parts[-1]] = _convert(str(text), node[parts[-1]], key)
+
+
+def _check_known(overrides: dict, config: dict, prefix: str, profile: str) -> None:
+    for key, value in overrides.items():
+        if key not in config:
+            raise ConfigError(f"profile '{profile}': unknown key {prefix}{key}{_close(key, config)}")
+        if isinstance(value, dict) and BASE_KEY not in value and isinstance(config[key], dict):
+            _check_known(value, config[key], f"{prefix}{key}.", profile)
+
+
+def apply_profile(config: EasyDict, profile: str | None = None) -> EasyDict:
+    """Merge config.PROFILES[profile] (default config.PROFILE, else 'paper') onto `config`; sets config.PROFILE."""
+    profile = profile or config.get("PROFILE") or DEFAULT_PROFILE
+    profiles = config.get("PROFILES") or {}
+    if profile not in profiles and profile != DEFAULT_PROFILE:
+        known = sorted(set(profiles) | {DEFAULT_PROFILE})
+        raise ConfigError(f"unknown profile '{profile}'; known profiles: {', '.join(known)}")
+    overrides = profiles.get(profile) or {}
+    _check_known(overrides, config, "", profile)
+    _merge(config, EasyDict(overrides))
+    config.PROFILE = profile
+    return config
+
+
+def experiment_group(cfg_file: str | Path) -> str:
+    """OpenPCDet's EXP_GROUP_PATH: the folders after `cfgs/` ('cfgs/memslidar_models/m1.yaml' -> 'memslidar_models');
+    without a `cfgs` folder in the path, the config's parent folder name."""
+    parts = Path(cfg_file).resolve().parts[:-1]
+    if "cfgs" in parts:
+        index = len(parts) - 1 - parts[::-1].index("cfgs")
+        return "/".join(parts[index + 1:])
+    return parts[-1] if parts else ""
+
+
+def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile: str | None = None) -> EasyDict:
+    """The full config: YAML (with bases), then the profile (`profile`, a --set PROFILE, or the file's PROFILE),
+    then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH."""
+    config = cfg_from_yaml_file(cfg_file)
+    set_cfgs = list(set_cfgs or [])
+    requested = dict(zip(set_cfgs[0::2], set_cfgs[1::2])).get("PROFILE")
+    apply_profile(config, profile or requested)
+    cfg_from_list([item for pair in zip(set_cfgs[0::2], set_cfgs[1::2]) if pair[0] != "PROFILE" for item in pair],
+                  config)
+    config.ROOT_DIR = cfg.ROOT_DIR
+    config.LOCAL_RANK = config.get("LOCAL_RANK", 0)
+    config.CFG_FILE = str(Path(cfg_file).resolve())
+    config.TAG = Path(cfg_file).stem
+    config.EXP_GROUP_PATH = experiment_group(cfg_file)
+    return config
+
+
+def log_config_to_file(config: dict, pre: str = "cfg", logger: logging.Logger | None = None) -> None:
+    """Log every leaf of `config` as 'pre.KEY.SUB: value' (OpenPCDet's training log format)."""
+    logger = logger or logging.getLogger(__name__)
+    for key, value in config.items():
+        if isinstance(value, dict):
+            logger.info(f"----------- {key} -----------")
+            log_config_to_file(value, pre=f"{pre}.{key}", logger=logger)
+        else:
+            logger.info(f"{pre}.{key}: {value}")
+
+
+cfg = EasyDict()
+cfg.ROOT_DIR = Path(__file__).resolve().parent.parent
+cfg.LOCAL_RANK = 0

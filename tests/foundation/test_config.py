@@ -1,0 +1,177 @@
+"""Configs: OpenPCDet semantics, paths that work from any working directory, --set, profiles."""
+from pathlib import Path
+
+import pytest
+
+from pcdet_memslidar.config import (apply_profile, cfg_from_list, cfg_from_yaml_file, experiment_group,
+                                    load_config, merge_new_config, resolve_path)
+from pcdet_memslidar.errors import ConfigError
+
+
+def _write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A cfgs/ tree with a dataset config, a base model config and a child; the working directory is elsewhere."""
+    root = tmp_path / "project"
+    _write(root / "cfgs/dataset_configs/ds.yaml", """
+DATASET: MEMSLidarDataset
+DATA_PATH: ../../data/sim
+POINT_CLOUD_RANGE: [0, -20.48, -0.5, 40.96, 20.48, 3.5]
+DATA_SPLIT: {train: train, test: val}
+""")
+    _write(root / "cfgs/models/base.yaml", """
+CLASS_NAMES: [Pedestrian]
+DATA_CONFIG:
+    _BASE_CONFIG_: ../dataset_configs/ds.yaml
+    DATA_SPLIT: {test: test}
+OPTIMIZATION:
+    LR: 1e-4
+    NUM_EPOCHS: 120
+    BATCH_SIZE_PER_GPU: 4
+    DECAY_STEP_LIST: [35, 45]
+    USE_AMP: false
+PROFILE: paper
+PROFILES:
+    quick: {OPTIMIZATION: {NUM_EPOCHS: 2, DECAY_STEP_LIST: [1]}}
+    smoke: {OPTIMIZATION: {NUM_EPOCHS: 1, BATCH_SIZE_PER_GPU: 1}}
+""")
+    _write(root / "cfgs/models/m1.yaml", """
+_BASE_CONFIG_: base.yaml
+DATA_CONFIG:
+    POINT_CLOUD_RANGE: [0, -10, -0.5, 20, 10, 3.5]
+OPTIMIZATION:
+    NUM_EPOCHS: 80
+""")
+    (root / "data/sim").mkdir(parents=True)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    return root
+
+
+def test_nested_bases_load_from_another_working_directory(project):
+    cfg = cfg_from_yaml_file(project / "cfgs/models/m1.yaml")
+    assert cfg.CLASS_NAMES == ["Pedestrian"]
+    assert cfg.DATA_CONFIG.DATASET == "MEMSLidarDataset"
+    # the child's list replaces the base's list, the base's dict merges key by key
+    assert cfg.DATA_CONFIG.POINT_CLOUD_RANGE == [0, -10, -0.5, 20, 10, 3.5]
+    assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "test"}
+    assert cfg.OPTIMIZATION == {"LR": 1e-4, "NUM_EPOCHS": 80, "BATCH_SIZE_PER_GPU": 4,
+                                "DECAY_STEP_LIST": [35, 45], "USE_AMP": False}
+    assert isinstance(cfg.OPTIMIZATION.LR, float)
+    # DATA_PATH is relative to the dataset config that wrote it, not to the working directory
+    assert cfg.DATA_CONFIG.DATA_PATH == str((project / "data/sim").resolve())
+    assert cfg.DATA_CONFIG._BASE_CONFIG_ == str((project / "cfgs/dataset_configs/ds.yaml").resolve())
+
+
+def test_base_and_data_path_fall_back_to_the_working_directory(project, monkeypatch):
+    monkeypatch.chdir(project)  # OpenPCDet-style paths, relative to the working directory
+    _write(project / "cfgs/models/cwd.yaml", """
+DATA_CONFIG:
+    _BASE_CONFIG_: cfgs/dataset_configs/ds.yaml
+    DATA_PATH: data/sim
+""")
+    cfg = cfg_from_yaml_file("cfgs/models/cwd.yaml")
+    assert cfg.DATA_CONFIG.DATASET == "MEMSLidarDataset"
+    assert cfg.DATA_CONFIG.DATA_PATH == str((project / "data/sim").resolve())
+
+
+def test_dict_with_its_own_base_replaces_what_an_outer_base_put_there(project):
+    # OpenPCDet: a mapping with _BASE_CONFIG_ starts from its base, not from the outer base's mapping
+    _write(project / "cfgs/models/rebase.yaml", """
+_BASE_CONFIG_: base.yaml
+DATA_CONFIG:
+    _BASE_CONFIG_: ../dataset_configs/ds.yaml
+    EXTRA: 1
+""")
+    cfg = cfg_from_yaml_file(project / "cfgs/models/rebase.yaml")
+    assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "val"}
+    assert cfg.DATA_CONFIG.EXTRA == 1
+
+
+def test_missing_base_names_the_file_and_line_that_asked_for_it(project):
+    child = _write(project / "cfgs/models/broken.yaml", "A: 1\nDATA_CONFIG:\n    _BASE_CONFIG_: nope/ds.yaml\n")
+    with pytest.raises(ConfigError, match=r"broken\.yaml:3: _BASE_CONFIG_ 'nope/ds\.yaml' not found"):
+        cfg_from_yaml_file(child)
+
+
+def test_base_cycle_and_missing_file_and_bad_yaml(project):
+    _write(project / "cfgs/a.yaml", "_BASE_CONFIG_: b.yaml\n")
+    _write(project / "cfgs/b.yaml", "_BASE_CONFIG_: a.yaml\n")
+    with pytest.raises(ConfigError, match="cycle"):
+        cfg_from_yaml_file(project / "cfgs/a.yaml")
+    with pytest.raises(ConfigError, match="absent.yaml: config file not found"):
+        cfg_from_yaml_file(project / "absent.yaml")
+    bad = _write(project / "cfgs/bad.yaml", "A: 1\nB: [1, 2\n")
+    with pytest.raises(ConfigError, match=r"bad\.yaml:\d+: invalid YAML"):
+        cfg_from_yaml_file(bad)
+
+
+def test_set_parses_yaml_values(project):
+    cfg = cfg_from_yaml_file(project / "cfgs/models/m1.yaml")
+    cfg_from_list(["OPTIMIZATION.LR", "3e-3", "OPTIMIZATION.NUM_EPOCHS", "7",
+                   "OPTIMIZATION.BATCH_SIZE_PER_GPU", "2", "OPTIMIZATION.DECAY_STEP_LIST", "[5, 6, 7]",
+                   "DATA_CONFIG.POINT_CLOUD_RANGE", "0,-5,-1,10,5,3", "OPTIMIZATION.USE_AMP", "true",
+                   "DATA_CONFIG.DATASET", "123", "DATA_CONFIG.DATA_SPLIT", "test:val"], cfg)
+    assert cfg.OPTIMIZATION.LR == 3e-3 and isinstance(cfg.OPTIMIZATION.LR, float)
+    assert cfg.OPTIMIZATION.NUM_EPOCHS == 7
+    assert cfg.OPTIMIZATION.DECAY_STEP_LIST == [5, 6, 7]
+    assert cfg.DATA_CONFIG.POINT_CLOUD_RANGE == [0, -5, -1, 10, 5, 3]
+    assert cfg.OPTIMIZATION.USE_AMP is True
+    assert cfg.DATA_CONFIG.DATASET == "123"  # a string key stays a string
+    assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "val"}
+    cfg_from_list(["OPTIMIZATION.LR", "1"], cfg)  # an int where a float was: widened
+    assert cfg.OPTIMIZATION.LR == 1.0 and isinstance(cfg.OPTIMIZATION.LR, float)
+
+
+def test_set_errors_name_the_key_and_close_matches(project):
+    cfg = cfg_from_yaml_file(project / "cfgs/models/m1.yaml")
+    with pytest.raises(ConfigError, match="unknown key 'NUM_EPOCH' in OPTIMIZATION; did you mean NUM_EPOCHS"):
+        cfg_from_list(["OPTIMIZATION.NUM_EPOCH", "3"], cfg)
+    with pytest.raises(ConfigError, match="unknown key 'OPTIMISATION' in the config; did you mean OPTIMIZATION"):
+        cfg_from_list(["OPTIMISATION.LR", "3"], cfg)
+    with pytest.raises(ConfigError, match="odd number"):
+        cfg_from_list(["OPTIMIZATION.LR"], cfg)
+    with pytest.raises(ConfigError, match="expected int"):
+        cfg_from_list(["OPTIMIZATION.NUM_EPOCHS", "2.5"], cfg)
+    with pytest.raises(ConfigError, match="expected bool"):
+        cfg_from_list(["OPTIMIZATION.USE_AMP", "1"], cfg)
+
+
+def test_profiles(project):
+    path = project / "cfgs/models/m1.yaml"
+    assert load_config(path).OPTIMIZATION.NUM_EPOCHS == 80  # paper: the config as written
+    quick = load_config(path, ["PROFILE", "quick"])
+    assert (quick.PROFILE, quick.OPTIMIZATION.NUM_EPOCHS, quick.OPTIMIZATION.DECAY_STEP_LIST) == ("quick", 2, [1])
+    # --set wins over the profile, whatever their order on the command line
+    smoke = load_config(path, ["OPTIMIZATION.NUM_EPOCHS", "5", "PROFILE", "smoke"])
+    assert (smoke.OPTIMIZATION.NUM_EPOCHS, smoke.OPTIMIZATION.BATCH_SIZE_PER_GPU) == (5, 1)
+    assert load_config(path, profile="smoke").OPTIMIZATION.NUM_EPOCHS == 1
+    with pytest.raises(ConfigError, match="unknown profile 'fast'; known profiles: paper, quick, smoke"):
+        load_config(path, ["PROFILE", "fast"])
+    cfg = cfg_from_yaml_file(path)
+    cfg.PROFILES.quick.OPTIMIZATION.NUM_EPOCS = 3
+    with pytest.raises(ConfigError, match="profile 'quick': unknown key OPTIMIZATION.NUM_EPOCS; did you mean"):
+        apply_profile(cfg, "quick")
+
+
+def test_experiment_names_and_resolve_path(project, tmp_path):
+    cfg = load_config(project / "cfgs/models/m1.yaml")
+    assert (cfg.TAG, cfg.EXP_GROUP_PATH, cfg.LOCAL_RANK) == ("m1", "models", 0)
+    assert cfg.CFG_FILE == str((project / "cfgs/models/m1.yaml").resolve())
+    assert experiment_group("/x/cfgs/memslidar_models/sub/m2.yaml") == "memslidar_models/sub"
+    assert experiment_group("/x/configs/m2.yaml") == "configs"
+    assert resolve_path(project / "cfgs/x.yaml", "/abs/path") == Path("/abs/path")
+    assert resolve_path(project / "cfgs/x.yaml", "new/dir") == (project / "cfgs/new/dir").resolve()
+    assert resolve_path(None, "new") == (Path.cwd() / "new").resolve()
+
+
+def test_merge_new_config_resolves_bases_relative_to_the_given_file(project):
+    cfg = merge_new_config(cfg_from_yaml_file(project / "cfgs/dataset_configs/ds.yaml"),
+                           {"_BASE_CONFIG_": "models/base.yaml", "NEW": [1]}, cfg_file=project / "cfgs/x.yaml")
+    assert cfg.NEW == [1] and cfg.OPTIMIZATION.NUM_EPOCHS == 120 and cfg.DATASET == "MEMSLidarDataset"
