@@ -1,0 +1,319 @@
+"""Reader for Blickfeld .bfpc point-cloud recordings (Cube 1), with no protobuf dependency.
+
+A .bfpc file is a gzip stream of protobuf messages, each preceded by its length as a varint: one
+file.PointCloud.Header, then file.PointCloud.Data messages holding a data.Frame each, and a last Data holding the
+footer. Field numbers follow Blickfeld's published .proto files (blickfeld-scanner-lib, protocol/blickfeld/):
+frames made of scan lines of points (pulses), each point with a time offset, a direction and up to 3 returns.
+
+Everything returned is in KITTI LiDAR axes (x forward, y left, z up); Blickfeld's own frame is y forward, x right,
+z up, so x_k = y_b, y_k = -x_b, z_k = z_b, and azimuth is measured from +x_k, positive to the left.
+"""
+from __future__ import annotations
+
+import gzip
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.errors import DataFormatError
+
+# protobuf wire types
+VARINT, FIXED64, LENGTH_DELIMITED, FIXED32 = 0, 1, 2, 5
+
+HARDWARE_VARIANTS = {0: "CUBE_V0_2", 1: "CUBE_V0_3", 2: "APOLLON_A0", 3: "AURORA_P3", 4: "CUBE_V1_0",
+                     5: "ALL_HARDWARE", 6: "UNKNOWN_HARDWARE", 7: "NO_HARDWARE", 8: "APOLLON_A1_BDU"}
+PULSE_TYPES = {0: "equi_horizontal_angle", 1: "equi_density", 2: "custom", 3: "interleave"}
+FRAME_MODES = {0: "none", 1: "combine_up_down", 2: "up", 3: "down", 4: "separate"}
+
+
+class _WireError(ValueError):
+    """Malformed protobuf bytes; turned into a DataFormatError naming the file and the message."""
+
+
+def _varint(buf: bytes, pos: int, end: int) -> tuple[int, int]:
+    """Decode the varint at buf[pos]; return (value, position after it)."""
+    value = shift = 0
+    while pos < end:
+        byte = buf[pos]
+        pos += 1
+        value |= (byte & 0x7F) << shift
+        if byte < 0x80:
+            return value, pos
+        shift += 7
+        if shift > 63:
+            raise _WireError("varint longer than 10 bytes")
+    raise _WireError("message ends inside a varint (truncated)")
+
+
+def _fields(buf: bytes, start: int, end: int) -> dict[int, list]:
+    """Parse one message in buf[start:end] into {field number: [values]}.
+
+    Values: int for varints, bytes for fixed32 / fixed64, (start, end) index pairs for length-delimited fields.
+    """
+    fields: dict[int, list] = {}
+    pos = start
+    while pos < end:
+        key, pos = _varint(buf, pos, end)
+        number, wire_type = key >> 3, key & 7
+        if wire_type == VARINT:
+            value, pos = _varint(buf, pos, end)
+        elif wire_type == LENGTH_DELIMITED:
+            length, pos = _varint(buf, pos, end)
+            value = (pos, pos + length)
+            pos += length
+        elif wire_type == FIXED32:
+            value = buf[pos:pos + 4]
+            pos += 4
+        elif wire_type == FIXED64:
+            value = buf[pos:pos + 8]
+            pos += 8
+        else:
+            raise _WireError(f"unsupported wire type {wire_type} for field {number}")
+        if pos > end or number == 0:
+            raise _WireError("field runs past the end of its message (truncated or not a protobuf message)")
+        fields.setdefault(number, []).append(value)
+    return fields
+
+
+def _expect(value, kind: type, what: str):
+    """Check that a field value has the wire form `kind` (int, bytes or tuple)."""
+    if not isinstance(value, kind):
+        raise _WireError(f"field '{what}' has the wrong wire type (not a Blickfeld point-cloud message)")
+    return value
+
+
+def _last(fields: dict, number: int, kind: type, what: str, default=None):
+    """The last value of a non-repeated field (protobuf semantics), or `default`."""
+    values = fields.get(number)
+    return default if not values else _expect(values[-1], kind, what)
+
+
+def _float(fields: dict, number: int, what: str, default: float = float("nan")) -> float:
+    raw = _last(fields, number, bytes, what)
+    return default if raw is None else struct.unpack("<f", raw)[0]
+
+
+def _double(fields: dict, number: int, what: str, default: float = float("nan")) -> float:
+    raw = _last(fields, number, bytes, what)
+    return default if raw is None else struct.unpack("<d", raw)[0]
+
+
+def _message(buf: bytes, fields: dict, number: int, what: str) -> dict:
+    """Parse the last occurrence of a sub-message field ({} when absent)."""
+    span = _last(fields, number, tuple, what)
+    return {} if span is None else _fields(buf, *span)
+
+
+def _string(buf: bytes, fields: dict, number: int, what: str) -> str:
+    span = _last(fields, number, tuple, what)
+    return "" if span is None else bytes(buf[span[0]:span[1]]).decode("utf-8", errors="replace")
+
+
+@dataclass(frozen=True)
+class BfpcScanPattern:
+    """Scan-pattern settings stored in a recording (angles in rad; nan / 0 where the file leaves them out)."""
+
+    hfov: float
+    vfov: float
+    lines_up: int
+    lines_down: int
+    angle_spacing: float
+    pulse_type: str
+    frame_mode: str
+    distortion_correction: bool
+    frame_rate_target_hz: float
+    frame_rate_maximum_hz: float
+    max_returns_per_point: int
+
+    @classmethod
+    def parse(cls, buf: bytes, fields: dict) -> "BfpcScanPattern":
+        horizontal = _message(buf, fields, 1, "scan_pattern.horizontal")
+        vertical = _message(buf, fields, 2, "scan_pattern.vertical")
+        pulse = _message(buf, fields, 3, "scan_pattern.pulse")
+        frame_rate = _message(buf, fields, 4, "scan_pattern.frame_rate")
+        filters = _message(buf, fields, 7, "scan_pattern.filter")
+        return cls(
+            hfov=_float(horizontal, 1, "horizontal.fov"), vfov=_float(vertical, 1, "vertical.fov"),
+            lines_up=_last(vertical, 2, int, "vertical.scanlines_up", 40),
+            lines_down=_last(vertical, 3, int, "vertical.scanlines_down", 40),
+            angle_spacing=_float(pulse, 2, "pulse.angle_spacing"),
+            pulse_type=PULSE_TYPES.get(_last(pulse, 3, int, "pulse.type", 3), "unknown"),
+            frame_mode=FRAME_MODES.get(_last(pulse, 4, int, "pulse.frame_mode", 1), "unknown"),
+            distortion_correction=bool(_last(pulse, 5, int, "pulse.distortion_correction", 1)),
+            frame_rate_target_hz=_double(frame_rate, 1, "frame_rate.target"),
+            frame_rate_maximum_hz=_double(frame_rate, 2, "frame_rate.maximum"),
+            max_returns_per_point=_last(filters, 1, int, "filter.max_number_of_returns_per_point", 1))
+
+
+@dataclass
+class BfpcFrame:
+    """One frame. P pulses (laser shots) and K <= 3 P returns.
+
+    Per pulse: time_offset (P,) float64 [s] from start_time_ns, azimuth / elevation (P,) float64 [rad] (KITTI:
+    azimuth from +x, positive to the left), scanline (P,) int64, point_id (P,) int64, ambient (P,) int64 ambient
+    light level, returned (P,) bool (False: the pulse got no return; such pulses have no point).
+    Per return: points (K, 4) float32 [x, y, z, intensity] in KITTI axes [m], ranges (K,) float32 [m],
+    return_pulse (K,) int64 index of its pulse, return_id (K,) int64 (0 = strongest).
+    """
+
+    frame_id: int
+    start_time_ns: int
+    scan_pattern: BfpcScanPattern | None
+    time_offset: np.ndarray
+    azimuth: np.ndarray
+    elevation: np.ndarray
+    scanline: np.ndarray
+    point_id: np.ndarray
+    ambient: np.ndarray
+    returned: np.ndarray
+    points: np.ndarray
+    ranges: np.ndarray
+    return_pulse: np.ndarray
+    return_id: np.ndarray
+
+    @property
+    def num_pulses(self) -> int:
+        return int(self.time_offset.shape[0])
+
+    def first_returns(self) -> np.ndarray:
+        """(K1,) indices into the per-return arrays of each returned pulse's strongest return."""
+        return np.flatnonzero(self.return_id == 0)
+
+
+@dataclass
+class BfpcRecording:
+    """A whole recording: device header, frames, footer statistics (counts as the device wrote them)."""
+
+    path: Path
+    serial_number: str
+    firmware_version: str
+    hardware_variant: str
+    start_time_ns: int
+    frames: list[BfpcFrame] = field(default_factory=list)
+    footer_frames: int | None = None
+    footer_points: int | None = None
+    footer_returns: int | None = None
+
+    @property
+    def scan_pattern(self) -> BfpcScanPattern | None:
+        """The scan pattern of the first frame that carries one."""
+        return next((frame.scan_pattern for frame in self.frames if frame.scan_pattern is not None), None)
+
+
+def _blickfeld_to_kitti(xyz: np.ndarray) -> np.ndarray:
+    """(N, 3) Blickfeld axes (x right, y forward, z up) -> KITTI axes (x forward, y left, z up)."""
+    return np.stack([xyz[:, 1], -xyz[:, 0], xyz[:, 2]], axis=1)
+
+
+def _parse_frame(buf: bytes, span: tuple[int, int]) -> BfpcFrame:
+    """Decode one data.Frame message."""
+    frame = _fields(buf, *span)
+    if 8 in frame:
+        raise _WireError("packed frames (BSL >= 2.16 REF_FRAME_PACKED) are not supported: record with the "
+                         "default (non-packed) point-cloud stream")
+    pulse_columns: list[tuple] = []    # (time_ns, azimuth_b, elevation_b, scanline, point_id, ambient)
+    return_columns: list[tuple] = []   # (x_b, y_b, z_b, range, intensity, pulse index, return id)
+    for line_index, line_span in enumerate(frame.get(2, [])):
+        line = _fields(buf, *_expect(line_span, tuple, "frame.scanlines"))
+        line_id = _last(line, 1, int, "scanline.id", line_index)
+        for point_span in line.get(3, []):
+            point = _fields(buf, *_expect(point_span, tuple, "scanline.points"))
+            direction = _message(buf, point, 5, "point.direction")
+            pulse_index = len(pulse_columns)
+            pulse_columns.append((_last(point, 3, int, "point.start_offset_ns", 0),
+                                  _float(direction, 1, "direction.azimuth"),
+                                  _float(direction, 2, "direction.elevation"), line_id,
+                                  _last(point, 1, int, "point.id", pulse_index),
+                                  _last(point, 4, int, "point.ambient_light_level", 0)))
+            for return_number, return_span in enumerate(point.get(2, [])):
+                echo = _fields(buf, *_expect(return_span, tuple, "point.returns"))
+                xyz_span = _last(echo, 2, tuple, "return.cartesian")
+                if xyz_span is None or xyz_span[1] - xyz_span[0] != 12:
+                    raise _WireError("a return without its 3 cartesian coordinates")
+                return_columns.append((*struct.unpack("<3f", buf[xyz_span[0]:xyz_span[1]]),
+                                       _float(echo, 3, "return.range"), _last(echo, 4, int, "return.intensity", 0),
+                                       pulse_index, _last(echo, 1, int, "return.id", return_number)))
+    pulses = np.array(pulse_columns, dtype=np.float64).reshape(-1, 6)
+    returns = np.array(return_columns, dtype=np.float64).reshape(-1, 7)
+    returned = np.zeros(len(pulses), dtype=bool)
+    returned[returns[:, 5].astype(np.int64)] = True
+    xyz = _blickfeld_to_kitti(returns[:, :3])
+    pattern_span = _last(frame, 5, tuple, "frame.scan_pattern")
+    return BfpcFrame(
+        frame_id=_last(frame, 1, int, "frame.id", 0), start_time_ns=_last(frame, 3, int, "frame.start_time_ns", 0),
+        scan_pattern=None if pattern_span is None else BfpcScanPattern.parse(buf, _fields(buf, *pattern_span)),
+        time_offset=pulses[:, 0] * 1e-9,
+        # Blickfeld's azimuth is positive towards +x_b (right); KITTI's positive towards +y_k (left)
+        azimuth=-pulses[:, 1], elevation=pulses[:, 2],
+        scanline=pulses[:, 3].astype(np.int64), point_id=pulses[:, 4].astype(np.int64),
+        ambient=pulses[:, 5].astype(np.int64), returned=returned,
+        points=np.concatenate([xyz, returns[:, 4:5]], axis=1).astype(np.float32),
+        ranges=returns[:, 3].astype(np.float32), return_pulse=returns[:, 5].astype(np.int64),
+        return_id=returns[:, 6].astype(np.int64))
+
+
+def _decompress(path: Path) -> bytes:
+    try:
+        with gzip.open(path, "rb") as stream:
+            return stream.read()
+    except FileNotFoundError:
+        raise DataFormatError(path, "file not found: give the path of a .bfpc recording") from None
+    except gzip.BadGzipFile as error:
+        raise DataFormatError(path, f"not a gzip stream ({error}): a .bfpc recording is gzip-compressed; "
+                                    "check that the file is a Blickfeld point-cloud recording") from None
+    except (EOFError, zlib.error, OSError) as error:
+        raise DataFormatError(path, f"corrupt or truncated gzip data ({error}): copy the recording again") from None
+
+
+def _messages(path: Path, buf: bytes):
+    """Yield (index, (start, end)) of each length-prefixed message in the decompressed stream."""
+    pos, index = 0, 0
+    while pos < len(buf):
+        try:
+            length, start = _varint(buf, pos, len(buf))
+        except _WireError:
+            raise DataFormatError(path, f"message {index} at byte {pos}: truncated length prefix") from None
+        if start + length > len(buf):
+            raise DataFormatError(path, f"message {index} at byte {pos}: truncated ({length} bytes announced, "
+                                        f"{len(buf) - start} left); the recording was cut off: copy it again")
+        yield index, (start, start + length)
+        pos, index = start + length, index + 1
+
+
+def read_bfpc(path: str | Path) -> BfpcRecording:
+    """Read a Blickfeld .bfpc recording; raise DataFormatError naming the file on bad input."""
+    path = Path(path)
+    buf = _decompress(path)
+    recording = None
+    for index, span in _messages(path, buf):
+        try:
+            message = _fields(buf, *span)
+            if recording is None:
+                device = _message(buf, message, 1, "header.device")
+                if not device or set(message) - {1, 2}:
+                    raise _WireError("the first message is not a point-cloud header")
+                recording = BfpcRecording(
+                    path=path, serial_number=_string(buf, device, 2, "header.cube_serial_number")
+                    or _string(buf, device, 1, "header.legacy_cube_serial_number"),
+                    firmware_version=_string(buf, device, 4, "header.firmware_version"),
+                    hardware_variant=HARDWARE_VARIANTS.get(_last(device, 5, int, "header.hardware_variant", 6),
+                                                           "UNKNOWN_HARDWARE"),
+                    start_time_ns=_last(device, 3, int, "header.start_time_ns", 0))
+            elif 1 in message:
+                recording.frames.append(_parse_frame(buf, _last(message, 1, tuple, "data.frame")))
+            elif 2 in message:
+                counter = _message(buf, _message(buf, message, 2, "data.footer"), 1, "footer.stats")
+                counter = _message(buf, counter, 1, "stats.counter")
+                recording.footer_frames = _last(counter, 1, int, "counter.frames")
+                recording.footer_points = _last(counter, 2, int, "counter.points")
+                recording.footer_returns = _last(counter, 3, int, "counter.returns")
+            else:
+                raise _WireError("a data message with neither a frame nor a footer")
+        except (_WireError, struct.error) as error:
+            raise DataFormatError(path, f"message {index} at byte {span[0]}: {error}") from None
+    if recording is None:
+        raise DataFormatError(path, "empty recording: no header message")
+    return recording

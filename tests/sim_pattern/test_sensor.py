@@ -1,0 +1,79 @@
+"""Sensor presets: the CARLA preset against its definition, the calibrated one against its physics."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.sim.sensor import get_sensor
+
+COUNT = 100_000
+
+
+def test_carla_drop_rate_and_range_noise_match_definition():
+    sensor = get_sensor("carla")
+    true_range = np.linspace(2.0, 60.0, COUNT)
+    measured, intensity, valid = sensor.measure(true_range, np.full(COUNT, 0.3), np.full(COUNT, 0.05),
+                                                np.random.default_rng(0))
+    drop = 1.0 - valid.mean()
+    assert abs(drop - 0.05) < 4 * np.sqrt(0.05 * 0.95 / COUNT)  # uniform 5 %, blind to reflectivity and angle
+    relative = measured[valid] / true_range[valid] - 1.0
+    assert abs(relative.mean()) < 4 * 0.005 / np.sqrt(valid.sum())
+    assert relative.std() == pytest.approx(0.005, rel=0.02)  # range x (1 + N(0, 0.005))
+    np.testing.assert_array_equal(intensity[valid], np.rint(511 * np.exp(-0.004 * measured[valid])))
+    assert np.isnan(measured[~valid]).all() and (intensity[~valid] == 0).all()
+
+
+def test_carla_has_no_edge_effect():
+    sensor = get_sensor("carla")
+    plain = sensor.measure(np.full(1000, 10.0), np.ones(1000), np.ones(1000), np.random.default_rng(1))
+    edged = sensor.measure(np.full(1000, 10.0), np.ones(1000), np.ones(1000), np.random.default_rng(1),
+                           edge_range=np.full(1000, 10.3))
+    np.testing.assert_array_equal(plain[0], edged[0])
+
+
+def test_calibrated_noise_misses_and_intensity():
+    sensor = get_sensor("calibrated")
+    true_range = np.full(COUNT, 10.0)
+    true_range[:1000] = np.inf  # no surface
+    true_range[1000:2000] = 1.0  # closer than the minimum range
+    measured, intensity, valid = sensor.measure(true_range, np.full(COUNT, 0.8), np.full(COUNT, 0.5),
+                                                np.random.default_rng(2))
+    assert not valid[:2000].any() and np.isnan(measured[:2000]).all()
+    assert valid[2000:].mean() > 0.99  # strong echo at 10 m: only the small base dropout
+    sigma = np.std(measured[valid] - 10.0)
+    assert sigma == pytest.approx(sensor.range_sigma_m + 10.0 * sensor.range_sigma_per_m, rel=0.03)
+    assert intensity.dtype == np.float32 and (intensity == np.rint(intensity)).all()
+    assert 0 <= intensity.min() and intensity.max() <= 511
+    expected = sensor.intensity_scale * 0.4 * 2.0 ** sensor.intensity_range_slope
+    assert np.median(intensity[valid]) == pytest.approx(expected, rel=0.02)
+
+
+def test_calibrated_dropout_follows_received_power():
+    sensor = get_sensor("calibrated")
+    ones = np.ones(COUNT)
+    near = sensor.measure(np.full(COUNT, 5.0), ones, np.full(COUNT, 0.1), np.random.default_rng(3))[2].mean()
+    far = sensor.measure(np.full(COUNT, 40.0), ones, np.full(COUNT, 0.1), np.random.default_rng(3))[2].mean()
+    grazing = sensor.measure(np.full(COUNT, 5.0), np.full(COUNT, 0.02), np.full(COUNT, 0.1),
+                             np.random.default_rng(3))[2].mean()
+    assert near > 0.99 and far < 0.5 and grazing < near
+
+
+def test_mixed_pixels_lie_between_the_two_surfaces():
+    sensor = dataclasses.replace(get_sensor("calibrated"), range_sigma_m=0.0, range_sigma_per_m=0.0)
+    measured, _, valid = sensor.measure(np.full(1000, 8.0), np.ones(1000), np.ones(1000), np.random.default_rng(4),
+                                        edge_range=np.where(np.arange(1000) < 500, 8.5, 20.0))
+    mixed = measured[:500][valid[:500]]
+    assert mixed.min() >= 8.0 and mixed.max() <= 8.5 and mixed.std() > 0.1
+    np.testing.assert_array_equal(measured[500:][valid[500:]], 8.0)  # too far apart to merge: centre surface
+
+
+def test_same_seed_same_result_and_unknown_preset():
+    sensor = get_sensor("calibrated")
+    args = (np.linspace(2, 30, 500), np.full(500, 0.7), np.full(500, 0.3))
+    first = sensor.measure(*args, np.random.default_rng(7))
+    second = sensor.measure(*args, np.random.default_rng(7))
+    for a, b in zip(first, second):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ConfigError, match="unknown sensor preset 'lidar'"):
+        get_sensor("lidar")
