@@ -28,6 +28,7 @@ setup(
         "libusb-package>=1.0.26",  # ships libusb-1.0.so.0, which the open3d wheel links against
         "tqdm>=4.60",
         "matplotlib>=3.7",
+        "python-neo-lzf>=0.3.5",  # LZF (C, BSD) for PCD DATA binary_compressed
     ],
     extras_require={"test": ["pytest>=7", "shapely>=2.0"]},
     entry_points={"console_scripts": ["memslidar=pcdet_memslidar.cli:main"]},

@@ -9,8 +9,18 @@ import argparse
 import importlib
 import sys
 
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+
 # name -> (module, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("pcdet_memslidar.sim.cli", "simulate a domain (sim | real | industrial) as a KITTI-layout dataset"),
+    "import": ("pcdet_memslidar.io.importer", "real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> dataset"),
+    "export-custom": ("pcdet_memslidar.io.custom", "a KITTI-layout dataset -> OpenPCDet's custom layout (points/*.npy)"),
+    "create-infos": ("pcdet_memslidar.datasets.infos", "info files and gt database of every source a config reads"),
+    "train": ("pcdet_memslidar.runtime.train", "train a SECOND detector (OpenPCDet's tools/train.py flags), then evaluate"),
+    "test": ("pcdet_memslidar.runtime.test", "evaluate checkpoints on the test split (OpenPCDet's tools/test.py flags)"),
+    "eval": ("pcdet_memslidar.evaluation.cli", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
+    "reproduce": ("pcdet_memslidar.reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
 }
 
 
@@ -28,8 +38,12 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     command = next((word for word in argv if not word.startswith("-")), None)
-    args = build_parser(command if command in COMMANDS else None).parse_args(argv)
-    return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
+    parser = build_parser(command if command in COMMANDS else None)
+    args = parser.parse_args(argv)
+    try:
+        return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
+    except (DataFormatError, ConfigError) as error:
+        parser.exit(2, f"memslidar {args.command}: error: {error}\n")
 
 
 if __name__ == "__main__":

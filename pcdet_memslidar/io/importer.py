@@ -1,0 +1,231 @@
+"""`memslidar import`: real recordings (and their CVAT labels) -> a KITTI-layout dataset in the ground frame.
+
+    list the source frames (lazily: each is read when it is written)
+    -> choose the mount: given (--mount), estimated from the ground plane (--estimate-ground) or none (the clouds
+       are already normalised, as the paper's were before annotation)
+    -> per frame: normalise points and cuboids, count what needs attention, write it (io.layout.write_frame)
+    -> write the 70/30 split and the validation report
+    all inside a temporary folder that replaces --out only when everything succeeded.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+from tqdm import tqdm
+
+from pcdet_memslidar import __version__
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io import cvat, ground
+from pcdet_memslidar.io.bfpc import read_bfpc
+from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
+from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
+from pcdet_memslidar.utils.atomic import atomic_dir, write_text
+
+FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
+POINT_CLOUD_RANGE = (0.0, -20.48, -0.5, 40.96, 20.48, 3.5)  # the person detector's range [m] (cfgs)
+MIN_BOX_POINTS = 5
+GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
+REPORT_NAME = "import_report.json"
+
+
+@dataclass
+class SourceFrame:
+    """One frame to import: its name in the source, a loader of its cloud and its cuboids (None: no labels)."""
+
+    name: str
+    load: Callable[[], LoadedCloud]
+    cuboids: cvat.CvatFrame | None = None
+
+
+def _bfpc_frames(src: Path) -> list[SourceFrame]:
+    """Frames of one .bfpc recording or of every .bfpc in a folder; a pulse without return counts as dropped."""
+    frames = []
+    for path in _files(src, ".bfpc"):
+        recording = read_bfpc(path)
+        for index, frame in enumerate(recording.frames):
+            strongest = frame.first_returns()
+            cloud = LoadedCloud(points=frame.points[strongest], time=frame.time_offset[frame.return_pulse[strongest]],
+                                dropped=int((~frame.returned).sum()), has_intensity=True)
+            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud))
+    return frames
+
+
+def _files(src: Path, suffix: str) -> list[Path]:
+    """`src` itself, or the files with `suffix` in the folder `src` in natural name order."""
+    if src.is_file():
+        return [src]
+    if not src.is_dir():
+        raise DataFormatError(src, "not found: give a file or a folder of files")
+    files = sorted((p for p in src.iterdir() if p.suffix.lower() == suffix), key=lambda p: cvat.natural_key(p.name))
+    if not files:
+        raise DataFormatError(src, f"no {suffix} files in this folder")
+    return files
+
+
+def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention: str = "cvat") -> list[SourceFrame]:
+    """The source frames of `src` in format `fmt` (for CVAT formats, `export_root` is the unpacked export)."""
+    if fmt == "bfpc":
+        return _bfpc_frames(src)
+    if fmt in ("pcd", "ply", "npy", "bin"):
+        return [SourceFrame(path.name, lambda path=path: read_point_cloud(path)) for path in _files(src, "." + fmt)]
+    exported = (cvat.read_sly_export(export_root) if fmt == "cvat-sly"
+                else cvat.read_kitti_raw_export(export_root, convention))
+    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path), frame) for frame in exported]
+
+
+def choose_mount(frames: list[SourceFrame], mount: Mount | None, estimate: bool) -> tuple[Mount | None, dict]:
+    """The mount to normalise with and its report entry; estimated from the first GROUND_FRAMES frames."""
+    if mount is not None:
+        return mount, {"source": "given", "height": mount.height, "tilt_deg": mount.tilt_deg, "roll_deg": mount.roll_deg}
+    if not estimate:
+        return None, {"source": "none (clouds stored as they are: already in the ground frame)"}
+    points = np.concatenate([frame.load().points for frame in frames[:GROUND_FRAMES]])
+    estimate_ = ground.estimate_ground(points[:: max(1, len(points) // 200_000)])
+    return estimate_.mount, {"source": "estimated from the ground plane", **estimate_.as_dict()}
+
+
+def _frame_report(points: np.ndarray, boxes: np.ndarray, point_cloud_range: np.ndarray) -> tuple[dict, np.ndarray]:
+    """Counts of one normalised frame, and the (M,) number of points in each box."""
+    inside = np.all((points[:, :3] >= point_cloud_range[:3]) & (points[:, :3] <= point_cloud_range[3:]), axis=1)
+    counts = points_in_boxes_mask(points[:, :3], boxes).sum(axis=0) if len(boxes) else np.zeros(0, np.int64)
+    return {"points": int(len(points)), "points_out_of_range": int((~inside).sum()), "boxes": int(len(boxes)),
+            "boxes_under_min_points": int((counts < MIN_BOX_POINTS).sum())}, counts
+
+
+def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mount_entry: dict, fmt: str,
+                  src: Path, skip_unknown: bool = False, point_cloud_range=POINT_CLOUD_RANGE,
+                  val_fraction: float = 0.3, seed: int = 0) -> dict:
+    """Normalise and write `frames` into a fresh dataset at `out` (replaced whole on success); return the report."""
+    labelled = [frame.cuboids for frame in frames if frame.cuboids is not None]
+    masks, unknown = cvat.person_mask(labelled, skip_unknown, src)
+    person = iter(masks)
+    point_cloud_range = np.asarray(point_cloud_range, dtype=np.float64)
+    report = {"format": fmt, "source": str(src), "out": str(out), "package_version": __version__,
+              "mount": mount_entry, "point_cloud_range": point_cloud_range.tolist(), "min_box_points": MIN_BOX_POINTS,
+              "skipped_unknown_labels": dict(sorted(unknown.items())), "per_frame": []}
+    with atomic_dir(out) as tmp:
+        layout = KittiLayout(tmp)
+        for index, frame in enumerate(tqdm(frames, desc="import", unit="frame")):
+            frame_id = f"{index:06d}"
+            cloud = frame.load()
+            points = cloud.points if mount is None else ground.normalise_points(cloud.points, mount)
+            boxes, levelling = np.zeros((0, 7)), np.zeros(0)
+            if frame.cuboids is not None:
+                keep = next(person)
+                c = frame.cuboids
+                boxes, levelling = ground.normalise_boxes(c.centers[keep], c.rotations[keep], c.sizes[keep],
+                                                          mount or Mount(0.0, 0.0))
+            entry, box_points = _frame_report(points, boxes, point_cloud_range)
+            entry.update(frame_id=frame_id, source=frame.name, labelled=frame.cuboids is not None,
+                         dropped_invalid_points=cloud.dropped,
+                         max_box_levelling_deg=float(levelling.max()) if len(levelling) else 0.0)
+            metadata = {"source": frame.name, "source_format": fmt, "mount": mount_entry,
+                        "num_points_in_gt": box_points, "package_version": __version__, "labelled": entry["labelled"],
+                        "has_intensity": cloud.has_intensity, "dropped_invalid_points": cloud.dropped}
+            if cloud.time is not None:
+                metadata["point_time"] = np.round(cloud.time, 7)
+            write_frame(layout, frame_id, points, [cvat.CLASS_NAME] * len(boxes), boxes, metadata)
+            report["per_frame"].append(entry)
+        train, val = write_split(layout, val_fraction, seed)
+        report.update(_totals(report["per_frame"]), train_frames=len(train), val_frames=len(val))
+        write_text(tmp / REPORT_NAME, json.dumps(report, indent=1) + "\n")
+    return report
+
+
+def _totals(per_frame: list[dict]) -> dict:
+    total = Counter()
+    for entry in per_frame:
+        total.update({key: entry[key] for key in ("points", "points_out_of_range", "boxes", "boxes_under_min_points",
+                                                   "dropped_invalid_points")})
+    return {"frames": len(per_frame), "frames_without_labels": sum(not e["labelled"] or not e["boxes"] for e in per_frame),
+            **dict(total), "max_box_levelling_deg": max((e["max_box_levelling_deg"] for e in per_frame), default=0.0)}
+
+
+def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
+                   estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
+                   point_cloud_range=POINT_CLOUD_RANGE, val_fraction: float = 0.3) -> dict:
+    """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report."""
+    if fmt not in FORMATS:
+        raise ConfigError(f"unknown format {fmt!r}; use one of {', '.join(FORMATS)}")
+    if mount is not None and estimate_ground:
+        raise ConfigError("give either a mount or estimate_ground, not both")
+    src, out = Path(src), Path(out)
+    if fmt.startswith("cvat"):
+        with cvat.open_export(src) as root:
+            frames = list_frames(fmt, src, root, convention)
+            mount, entry = choose_mount(frames, mount, estimate_ground)
+            return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range, val_fraction)
+    frames = list_frames(fmt, src)
+    mount, entry = choose_mount(frames, mount, estimate_ground)
+    return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range, val_fraction)
+
+
+def format_report(report: dict) -> str:
+    """Human-readable summary of an import report."""
+    mount = report["mount"]
+    lines = [f"imported {report['frames']} frames ({report['format']}) from {report['source']} into {report['out']}",
+             f"  mount: {mount['source']}" + (f": height {mount['height']:.3f} m, tilt {mount['tilt_deg']:.2f} deg, "
+                                             f"roll {mount['roll_deg']:.2f} deg" if "height" in mount else "")]
+    if "inliers" in mount:
+        lines.append(f"  ground plane: {mount['inliers']} inliers, RMS {100 * mount['rms_m']:.2f} cm")
+    lines += [f"  frames without labels:            {report['frames_without_labels']}",
+              f"  boxes:                            {report['boxes']}",
+              f"  boxes with < {report['min_box_points']} points:            {report['boxes_under_min_points']}",
+              f"  points:                           {report['points']}",
+              f"  points out of range {report['point_cloud_range']}: {report['points_out_of_range']}",
+              f"  dropped NaN / zero / no-return:   {report['dropped_invalid_points']}",
+              f"  max box levelling [deg]:          {report['max_box_levelling_deg']:.2f}",
+              f"  split: {report['train_frames']} train / {report['val_frames']} val"]
+    if report["skipped_unknown_labels"]:
+        lines.append(f"  skipped unknown labels: {report['skipped_unknown_labels']}")
+    return "\n".join(lines)
+
+
+def _mount_argument(text: str) -> Mount:
+    try:
+        return ground.parse_mount(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--format", required=True, choices=FORMATS, help="source format")
+    parser.add_argument("--src", required=True, type=Path,
+                        help="a file, a folder of files, or a CVAT export (folder or .zip)")
+    parser.add_argument("--out", type=Path, default=Path("data/memslidar/real"),
+                        help="dataset folder to create (default: %(default)s)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--mount", type=_mount_argument, metavar="H,TILT[,ROLL]",
+                       help="sensor height [m] and tilt [deg] (> 0 looks down) to remove")
+    where.add_argument("--estimate-ground", action="store_true", help="estimate the mount from the ground plane")
+    parser.add_argument("--skip-unknown-labels", action="store_true",
+                        help="drop (and count) cuboids whose label is not person / pedestrian instead of failing")
+    parser.add_argument("--kitti-raw-convention", choices=("cvat", "kitti"), default="cvat",
+                        help="cvat: sizes and centre as CVAT/Datumaro write them; kitti: the KITTI raw devkit's")
+    parser.add_argument("--point-cloud-range", type=float, nargs=6, default=list(POINT_CLOUD_RANGE),
+                        metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), help="range for the out-of-range count [m]")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it already holds files")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.out.exists() and any(args.out.iterdir()) and not args.overwrite:
+        print(f"error: {args.out} already holds files; pass --overwrite to replace it", file=sys.stderr)
+        return 2
+    try:
+        report = import_dataset(args.format, args.src, args.out, args.mount, args.estimate_ground,
+                                args.skip_unknown_labels, args.kitti_raw_convention, args.point_cloud_range)
+    except (DataFormatError, ConfigError, ValueError) as error:
+        print(f"error: {error}\n(nothing was written to {args.out})", file=sys.stderr)
+        return 1
+    print(format_report(report))
+    print(f"report: {args.out / REPORT_NAME}")
+    return 0

@@ -1,0 +1,66 @@
+"""Box corners, points in boxes, heading wrapping and LiDAR <-> KITTI camera boxes."""
+import numpy as np
+import pytest
+import torch
+
+from pcdet_memslidar.geometry.boxes import (boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d,
+                                            enlarge_box3d, limit_period, normalize_heading, points_in_boxes_mask,
+                                            rotate_points_along_z)
+from pcdet_memslidar.geometry.calibration import Calibration
+
+
+def test_corners_of_a_turned_box():
+    corners = boxes_to_corners_3d(np.array([[10.0, 5.0, 1.0, 4.0, 2.0, 2.0, np.pi / 2]]))
+    assert corners.shape == (1, 8, 3)
+    # corner 0 is (+dx/2, +dy/2, -dz/2) in the box frame; a quarter turn maps (2, 1) to (-1, 2)
+    np.testing.assert_allclose(corners[0, 0], [9.0, 7.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(corners[0, 4], [9.0, 7.0, 2.0], atol=1e-12)
+    np.testing.assert_allclose(corners[0].mean(axis=0), [10.0, 5.0, 1.0], atol=1e-12)
+
+
+def test_points_in_boxes_local_frame():
+    boxes = np.array([[0.0, 0.0, 1.0, 4.0, 1.0, 2.0, np.pi / 2], [5.0, 0.0, 0.5, 1.0, 1.0, 1.0, 0.0]])
+    points = np.array([
+        [0.0, 1.9, 1.0],   # inside the first box: its length runs along y after the quarter turn
+        [1.9, 0.0, 1.0],   # outside: only 0.5 m of width along x
+        [0.0, 0.0, 2.0],   # on the top face: boundary counts as inside
+        [5.4, 0.4, 0.9],   # inside the second box
+        [5.0, 0.0, 1.01],  # above the second box
+    ])
+    expected = np.array([[1, 0], [0, 0], [1, 0], [0, 1], [0, 0]], dtype=bool)
+    np.testing.assert_array_equal(points_in_boxes_mask(points, boxes), expected)
+
+
+def test_limit_period_numpy_and_torch():
+    angles = np.array([-np.pi, np.pi, 3 * np.pi / 2, -7.0, 0.2])
+    wrapped = normalize_heading(angles)
+    np.testing.assert_allclose(wrapped, [-np.pi, -np.pi, -np.pi / 2, -7.0 + 2 * np.pi, 0.2], atol=1e-12)
+    assert ((wrapped >= -np.pi) & (wrapped < np.pi)).all()
+    wrapped_torch = limit_period(torch.tensor([3.5], dtype=torch.float64), offset=0, period=np.pi)
+    np.testing.assert_allclose(wrapped_torch.numpy(), [3.5 - np.pi])
+
+
+def test_rotate_points_keeps_extra_columns():
+    rotated = rotate_points_along_z(np.array([[1.0, 0.0, 3.0, 0.7]]), np.pi / 2)
+    np.testing.assert_allclose(rotated, [[0.0, 1.0, 3.0, 0.7]], atol=1e-12)
+
+
+def test_enlarge_box3d():
+    grown = enlarge_box3d(np.array([[1.0, 2.0, 3.0, 1.0, 1.0, 2.0, 0.5]]), (0.2, 0.4, 0.0))
+    np.testing.assert_allclose(grown, [[1.0, 2.0, 3.0, 1.2, 1.4, 2.0, 0.5]])
+
+
+def test_camera_round_trip_and_kitti_convention():
+    calib = Calibration.virtual()
+    boxes = np.array([[8.0, 2.0, 0.9, 0.6, 0.5, 1.8, 0.3], [15.0, -4.0, 0.85, 0.7, 0.6, 1.7, -2.9]])
+    camera = boxes_lidar_to_camera(boxes, calib)
+    # virtual camera: camera x = -lidar y, camera y = -lidar z (bottom centre), camera z = lidar x
+    np.testing.assert_allclose(camera[0, :3], [-2.0, 0.0, 8.0], atol=1e-12)
+    np.testing.assert_allclose(camera[0, 3:6], [0.6, 1.8, 0.5])  # l, h, w
+    np.testing.assert_allclose(camera[0, 6], -0.3 - np.pi / 2)
+    np.testing.assert_allclose(boxes_camera_to_lidar(camera, calib), boxes, atol=1e-12)
+
+
+def test_bad_box_shape_names_the_problem():
+    with pytest.raises(ValueError, match=r"expected an \(N, 7\) array"):
+        boxes_to_corners_3d(np.zeros(7))

@@ -1,0 +1,99 @@
+"""Point-cloud readers: PCD (3 encodings) and PLY written by Open3D (an independent writer), NPY, BIN, bad files."""
+import numpy as np
+import pytest
+
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.io.pointclouds import read_point_cloud
+from pcdet_memslidar.utils.open3d import import_open3d
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    """(50, 3) xyz, (50,) intensity 0..511, (50,) time [s]; points 0 and 1 invalid (NaN, all zero)."""
+    rng = np.random.default_rng(0)
+    xyz = rng.uniform(-10, 10, (50, 3)).astype(np.float32)
+    xyz[0] = np.nan
+    xyz[1] = 0.0
+    return xyz, rng.integers(0, 512, 50).astype(np.float32), rng.uniform(0, 0.12, 50).astype(np.float32)
+
+
+def _write_open3d(path, cloud, **kwargs):
+    o3d = import_open3d()
+    xyz, intensity, time = cloud
+    pc = o3d.t.geometry.PointCloud()
+    pc.point.positions = o3d.core.Tensor(xyz)
+    pc.point.intensity = o3d.core.Tensor(intensity[:, None])
+    pc.point.time = o3d.core.Tensor(time[:, None])
+    assert o3d.t.io.write_point_cloud(str(path), pc, **kwargs)
+
+
+@pytest.mark.parametrize("name, kwargs", [
+    ("ascii.pcd", dict(write_ascii=True)), ("binary.pcd", dict(write_ascii=False, compressed=False)),
+    ("compressed.pcd", dict(write_ascii=False, compressed=True)), ("binary.ply", dict(write_ascii=False)),
+    ("ascii.ply", dict(write_ascii=True))])
+def test_open3d_files_read_back_with_intensity_time_and_counted_invalid_points(tmp_path, cloud, name, kwargs):
+    _write_open3d(tmp_path / name, cloud, **kwargs)
+    if name == "compressed.pcd":
+        assert b"DATA binary_compressed" in (tmp_path / name).read_bytes()[:400]
+    loaded = read_point_cloud(tmp_path / name)
+    xyz, intensity, time = cloud
+    assert loaded.dropped == 2 and loaded.has_intensity
+    assert loaded.points.shape == (48, 4) and loaded.points.dtype == np.float32
+    np.testing.assert_allclose(loaded.points[:, :3], xyz[2:], atol=1e-4)
+    np.testing.assert_allclose(loaded.points[:, 3], intensity[2:], atol=1e-3)
+    np.testing.assert_allclose(loaded.time, time[2:], atol=1e-6)
+
+
+def test_hand_written_pcd_with_uint_intensity_and_padding(tmp_path):
+    (tmp_path / "a.pcd").write_text(
+        "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z _ intensity\nSIZE 4 4 4 1 2\nTYPE F F F U U\nCOUNT 1 1 1 1 1\n"
+        "WIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n1.5 -2 3 0 300\nnan nan nan 0 0\n0 0 0 0 7\n")
+    loaded = read_point_cloud(tmp_path / "a.pcd")
+    np.testing.assert_array_equal(loaded.points, [[1.5, -2.0, 3.0, 300.0]])
+    assert loaded.dropped == 2 and loaded.time is None
+
+
+@pytest.mark.parametrize("name, kwargs, message", [
+    ("a.pcd", dict(write_ascii=True), "truncated"), ("b.pcd", dict(write_ascii=False, compressed=False), "truncated"),
+    ("c.pcd", dict(write_ascii=False, compressed=True), "truncated"), ("d.ply", dict(write_ascii=False), "truncated")])
+def test_truncated_files_raise_naming_the_file(tmp_path, cloud, name, kwargs, message):
+    _write_open3d(tmp_path / name, cloud, **kwargs)
+    data = (tmp_path / name).read_bytes()
+    (tmp_path / name).write_bytes(data[:-200])
+    with pytest.raises(DataFormatError, match=message) as error:
+        read_point_cloud(tmp_path / name)
+    assert name in str(error.value)
+
+
+def test_corrupt_lzf_and_bad_ascii_row(tmp_path, cloud):
+    _write_open3d(tmp_path / "c.pcd", cloud, write_ascii=False, compressed=True)
+    data = bytearray((tmp_path / "c.pcd").read_bytes())
+    start = data.index(b"DATA binary_compressed\n") + len(b"DATA binary_compressed\n") + 8
+    data[start:start + 40] = b"\xff" * 40  # LZF back-references far before the start of the output
+    (tmp_path / "c.pcd").write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match="corrupt"):
+        read_point_cloud(tmp_path / "c.pcd")
+    (tmp_path / "e.pcd").write_text("FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 2\nDATA ascii\n1 2 3\n1 two 3\n")
+    with pytest.raises(DataFormatError, match=r"e\.pcd:7: bad row"):
+        read_point_cloud(tmp_path / "e.pcd")
+
+
+def test_npy_and_bin(tmp_path):
+    np.save(tmp_path / "a.npy", np.array([[1, 2, 3, 4, 0.5], [0, 0, 0, 9, 0.6]], dtype=np.float64))
+    loaded = read_point_cloud(tmp_path / "a.npy")
+    np.testing.assert_array_equal(loaded.points, [[1, 2, 3, 4]])
+    np.testing.assert_array_equal(loaded.time, [0.5])
+    assert loaded.dropped == 1
+    structured = np.zeros(2, dtype=[("x", "f4"), ("y", "f4"), ("z", "f4"), ("reflectivity", "u2")])
+    structured[0] = (1, 2, 3, 40)
+    structured[1] = (4, 5, 6, 50)
+    np.save(tmp_path / "s.npy", structured)
+    np.testing.assert_array_equal(read_point_cloud(tmp_path / "s.npy").points[:, 3], [40, 50])
+    np.array([0, 0, 0, 3, 4, 5, 6, 7], dtype="<f4").tofile(tmp_path / "k.bin")
+    np.testing.assert_array_equal(read_point_cloud(tmp_path / "k.bin").points, [[4, 5, 6, 7]])  # row 0 is all zero
+    (tmp_path / "t.bin").write_bytes(b"\0" * 20)
+    with pytest.raises(DataFormatError, match="multiple of 16"):
+        read_point_cloud(tmp_path / "t.bin")
+    with pytest.raises(DataFormatError, match="shape"):
+        np.save(tmp_path / "b.npy", np.zeros((3, 7)))
+        read_point_cloud(tmp_path / "b.npy")
