@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.geometry.boxes import boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
 
@@ -184,29 +185,22 @@ def write_label(path: str | Path, label: KittiLabel) -> None:
 # ---------------------------------------------------------------------------------------------------- boxes
 def boxes_from_label(label: KittiLabel, calib: Calibration) -> np.ndarray:
     """(M, 7) LiDAR boxes [x, y, z_center, dx, dy, dz, heading] of `label`; heading in [-pi, pi)."""
-    length, height, width = label.dimensions.T
-    centre = calib.rect_to_lidar(label.location.reshape(-1, 3))
-    centre[:, 2] += height / 2
-    heading = _wrap_angle(-(label.rotation_y + np.pi / 2))
-    return np.column_stack([centre, length, width, height, heading]).reshape(-1, 7)
+    camera = np.column_stack([label.location.reshape(-1, 3), label.dimensions.reshape(-1, 3), label.rotation_y])
+    return boxes_camera_to_lidar(camera, calib)
 
 
-def _image_bbox(dimensions: np.ndarray, location: np.ndarray, rotation_y: np.ndarray,
-                calib: Calibration) -> np.ndarray:
-    """(M, 4) [x1, y1, x2, y2] px: the 2D box of the projected corners in front of the camera, clipped to the
-    image; zeros for a box entirely behind the camera."""
-    signs = np.array([[1, 1, 1, 1, -1, -1, -1, -1], [0, 0, -1, -1, 0, 0, -1, -1], [1, -1, 1, -1, 1, -1, 1, -1]])
-    boxes = np.zeros((len(location), 4))
-    for i, ((l, h, w), centre, ry) in enumerate(zip(dimensions, location, rotation_y)):
-        corners = signs * np.array([[l / 2], [h], [w / 2]])  # camera y points down: the top is at -h
-        rotation = np.array([[np.cos(ry), 0, np.sin(ry)], [0, 1, 0], [-np.sin(ry), 0, np.cos(ry)]])
-        corners = (rotation @ corners).T + centre
-        corners = corners[corners[:, 2] > 0.1]
-        if len(corners):
-            pixels = np.hstack([corners, np.ones((len(corners), 1))]) @ calib.P2.T
-            pixels = pixels[:, :2] / pixels[:, 2:3]
-            boxes[i] = np.clip([*pixels.min(axis=0), *pixels.max(axis=0)], 0, [*IMAGE_SIZE, *IMAGE_SIZE])
-    return boxes
+def _image_bbox(boxes: np.ndarray, calib: Calibration) -> np.ndarray:
+    """(M, 4) [x1, y1, x2, y2] px: the 2D box of the corners of (M, 7) LiDAR boxes that lie in front of the camera,
+    projected and clipped to the image; zeros for a box entirely behind the camera."""
+    corners = calib.lidar_to_rect(boxes_to_corners_3d(boxes).reshape(-1, 3)).reshape(-1, 8, 3)
+    pixels = np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=2) @ calib.P2.T
+    in_front = corners[:, :, 2] > 0.1
+    pixels = pixels[:, :, :2] / np.where(in_front, pixels[:, :, 2], 1.0)[:, :, None]
+    low = np.where(in_front[:, :, None], pixels, np.inf).min(axis=1)
+    high = np.where(in_front[:, :, None], pixels, -np.inf).max(axis=1)
+    bbox = np.clip(np.hstack([low, high]), 0, [*IMAGE_SIZE, *IMAGE_SIZE])
+    bbox[~in_front.any(axis=1)] = 0.0
+    return bbox
 
 
 def label_from_boxes(names, boxes: np.ndarray, calib: Calibration, scores: np.ndarray | None = None) -> KittiLabel:
@@ -216,14 +210,11 @@ def label_from_boxes(names, boxes: np.ndarray, calib: Calibration, scores: np.nd
     names = np.array([str(name) for name in names], dtype=str) if len(names) else np.zeros(0, dtype="<U10")
     if len(names) != len(boxes) or (scores is not None and len(scores) != len(boxes)):
         raise ValueError(f"names ({len(names)}), boxes ({len(boxes)}) and scores must have the same length")
-    bottom = boxes[:, :3].copy()
-    bottom[:, 2] -= boxes[:, 5] / 2
-    location = calib.lidar_to_rect(bottom).reshape(-1, 3)
-    rotation_y = _wrap_angle(-boxes[:, 6] - np.pi / 2)
-    dimensions = boxes[:, [3, 5, 4]]  # dx dz dy -> l h w
+    camera = boxes_lidar_to_camera(boxes, calib)
+    location, dimensions, rotation_y = camera[:, :3], camera[:, 3:6], camera[:, 6]
     alpha = _wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
     return KittiLabel(name=names, truncated=np.zeros(len(boxes)), occluded=np.zeros(len(boxes), dtype=np.int64),
-                      alpha=alpha, bbox=_image_bbox(dimensions, location, rotation_y, calib), dimensions=dimensions,
+                      alpha=alpha, bbox=_image_bbox(boxes, calib), dimensions=dimensions,
                       location=location, rotation_y=rotation_y,
                       score=None if scores is None else np.asarray(scores, dtype=np.float64).copy())
 

@@ -7,6 +7,7 @@ import pytest
 
 from pcdet_memslidar.cli import main
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.evaluation.cli import evaluate_folders
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io.kitti import label_from_boxes, write_label
 
@@ -57,13 +58,19 @@ def test_table_output(folders, capsys):
     assert lines[1].split()[:4] == ["all", "4", "4", "0.6875"]
 
 
-def test_predictions_without_scores_are_rejected(folders):
+def test_predictions_without_scores_are_rejected(folders, capsys):
     gt, pred = folders
     write(pred / "000001.txt", people((25, 3)))
-    with pytest.raises(DataFormatError, match=r"000001.txt: prediction labels need a 16th column"):
+    with pytest.raises(SystemExit) as exit_info:
         main(["eval", "--gt", str(gt), "--pred", str(pred)])
+    assert exit_info.value.code == 2
+    assert "000001.txt: prediction labels need a 16th column" in capsys.readouterr().err
+    with pytest.raises(DataFormatError, match=r"000001.txt: prediction labels need a 16th column"):
+        evaluate_folders(gt, pred)
 
 
-def test_missing_folder_is_named(tmp_path):
-    with pytest.raises(DataFormatError, match="nope: label folder not found"):
+def test_missing_folder_is_named(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
         main(["eval", "--gt", str(tmp_path / "nope"), "--pred", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "nope: label folder not found" in capsys.readouterr().err
