@@ -1,0 +1,63 @@
+"""Boxes of the people of a frame, from the simulator state (never from the points).
+
+One box per person at the frame's mid time (the mean time at which an up-and-down frame scans any elevation):
+the posed body's extent in its heading frame from the ground up, heading = direction of travel (facing direction
+when standing).
+Its points are the returns of the pulses whose nearest hit is that person; its occlusion is the share of the
+pulses that would hit it if nothing else were there but hit something nearer.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from pcdet_memslidar.sim.bodies import BodyBank
+from pcdet_memslidar.sim.people import Person
+
+CLASS_NAME = "Pedestrian"
+MIN_POINTS = 5  # boxes with fewer points are kept in the metadata but not labelled
+OCCLUSION_LEVELS = (0.1, 0.5)  # occluded share below which a box is KITTI level 0 (fully visible), 1 (partly)
+
+
+def person_box(bank: BodyBank, lod: str, person: Person, time_s: float) -> np.ndarray:
+    """(7,) box [x, y, z_center, dx, dy, dz, heading] of `person`'s posed body at `time_s` [s]."""
+    xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
+    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[0]
+    vertices = bank.posed_vertices(lod, person.shape, transforms)
+    low, high = vertices.min(0), vertices.max(0)
+    low[2] = 0.0  # people stand on the flat ground; blended gait poses may float up to ~1 cm above it
+    centre = 0.5 * (low + high)
+    c, s = np.cos(heading[0]), np.sin(heading[0])
+    x = xy[0, 0] + c * centre[0] - s * centre[1]
+    y = xy[0, 1] + s * centre[0] + c * centre[1]
+    wrapped = (heading[0] + np.pi) % (2 * np.pi) - np.pi
+    return np.array([x, y, centre[2], *(high - low), wrapped])
+
+
+def occlusion_level(occluded_share: float) -> int:
+    """KITTI occlusion level: 0 fully visible, 1 partly occluded, 2 largely occluded."""
+    return int(np.searchsorted(OCCLUSION_LEVELS, occluded_share, side="right"))
+
+
+def label_people(bank: BodyBank, lod: str, people: list[Person], time_s: float, points_per_person: np.ndarray,
+                 hits_per_person: np.ndarray, unoccluded: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Boxes of all people.
+
+    points_per_person (people,) returned points of each person; hits_per_person (people,) pulses whose nearest
+    hit is the person (before dropout); unoccluded (people,) pulses that would hit each person on its own. Returns boxes (M, 7) and names (M,) of the labelled people (>= MIN_POINTS points) and one
+    metadata dict per person (labelled or not)."""
+    boxes, records = [], []
+    for index, person in enumerate(people):
+        box = person_box(bank, lod, person, time_s)
+        visible = int(points_per_person[index])
+        share = 0.0 if unoccluded[index] == 0 else float(max(0.0, 1.0 - hits_per_person[index] / unoccluded[index]))
+        labelled = visible >= MIN_POINTS
+        if labelled:
+            boxes.append(box)
+        records.append(dict(box=[round(float(v), 6) for v in box], num_points=visible, labelled=labelled,
+                            occluded_share=round(share, 4), occlusion_level=occlusion_level(share),
+                            shape=person.shape, sex=bank.shape_sex[person.shape],
+                            stature_m=float(bank.shape_stature_m[person.shape]),
+                            build=bank.shape_build[person.shape], behaviour=person.behaviour, group=person.group,
+                            vest=person.vest))
+    boxes = np.array(boxes, dtype=np.float64).reshape(-1, 7)
+    return boxes, np.array([CLASS_NAME] * len(boxes), dtype=object), records

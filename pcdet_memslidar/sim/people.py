@@ -1,0 +1,111 @@
+"""People of one frame: body shape, clothing reflectivities and a collision-free trajectory.
+
+People are placed one by one (a newly placed person may bring a companion walking side by side); a placement
+whose path during the frame comes closer than the domain's separation to someone already placed, or enters an
+obstacle's footprint, is redrawn. Everything is drawn from the frame's numpy Generator, so a frame's people
+depend only on its seed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.sim.bodies import BodyBank
+from pcdet_memslidar.sim.domains import DomainPreset
+from pcdet_memslidar.sim.motion import Trajectory, make_trajectory
+from pcdet_memslidar.sim.scenes import Scene
+
+BODY_RADIUS_M = 0.35  # clearance of a body's centre from obstacle footprints
+GROUP_SPACING_M = 0.75  # lateral distance of companions walking side by side
+MAX_TRIES = 60  # placements tried per frame before giving up on the remaining people
+VEST_REFLECTIVITY = 0.95  # fluorescent fabric with retro-reflective stripes
+
+
+@dataclass(frozen=True)
+class Person:
+    """shape: body-bank shape index; reflectivity (materials,) per body material (skin, upper clothing, lower
+    clothing, shoes); behaviour: walk | turn | stop_and_go | stand; group: index of the group (companions share
+    it)."""
+
+    shape: int
+    trajectory: Trajectory
+    reflectivity: np.ndarray
+    behaviour: str
+    group: int
+    vest: bool
+
+
+def visible_x_range(mount: Mount, vfov_deg: float, scene: Scene) -> tuple[float, float]:
+    """(x_min, x_max) [m] of placements: from where a 1.2 m high head enters the lower FoV edge to the scene's
+    walking limit or where the upper FoV edge meets the ground."""
+    lower = np.deg2rad(mount.tilt_deg + vfov_deg / 2)
+    upper = np.deg2rad(mount.tilt_deg - vfov_deg / 2)
+    x_min = max(1.0, (mount.height - 1.2) / np.tan(lower))
+    x_max = scene.walk_x_max if upper <= 0 else min(scene.walk_x_max, mount.height / np.tan(upper))
+    return x_min, x_max
+
+
+def _draw_body(rng: np.random.Generator, preset: DomainPreset, bank: BodyBank) -> tuple[int, np.ndarray, bool]:
+    """A body shape, its (materials,) reflectivities and whether it wears a high-visibility vest."""
+    shapes = preset.shapes if preset.shapes is not None else tuple(range(bank.num_shapes))
+    shape = int(shapes[rng.integers(len(shapes))])
+    skin, upper, lower, shoes, vest_draw = rng.uniform([0.3, 0.05, 0.05, 0.05, 0.0], [0.55, 0.8, 0.5, 0.3, 1.0])
+    vest = bool(vest_draw < preset.vest_probability)
+    reflectivity = np.array([skin, VEST_REFLECTIVITY if vest else upper, lower, shoes])
+    return shape, reflectivity, vest
+
+
+def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, mount: Mount, hfov_deg: float,
+                  vfov_deg: float, frame_period_s: float, bank: BodyBank) -> list[Person]:
+    """The people of one frame (possibly fewer than drawn when the scene is crowded)."""
+    count = int(rng.integers(preset.people[0], preset.people[1] + 1))
+    x_min, x_max = visible_x_range(mount, vfov_deg, scene)
+    names, weights = zip(*preset.behaviours)
+    people: list[Person] = []
+    frame = None
+    for _ in range(MAX_TRIES):
+        if len(people) >= count:
+            break
+        size = 2 if count - len(people) >= 2 and rng.random() < preset.group_probability else 1
+        x = rng.uniform(x_min, x_max)
+        y = rng.uniform(-1.0, 1.0) * (x * np.tan(np.deg2rad(hfov_deg / 2)) + 1.0)
+        heading = scene.walk_headings[rng.integers(len(scene.walk_headings))] + rng.normal(0.0, 0.2)
+        behaviour = names[rng.choice(len(names), p=np.asarray(weights) / np.sum(weights))]
+        speed = float(np.clip(rng.normal(1.37, 0.15), 0.9, 1.8))
+        group = len(people)
+        members = []
+        for member in range(size):
+            shape, reflectivity, vest = _draw_body(rng, preset, bank)
+            stride = float(bank.stride_length(np.array([shape]))[0])
+            if member == 0:
+                trajectory = make_trajectory(behaviour, rng, np.array([x, y]), heading, speed, stride, frame_period_s)
+            else:
+                trajectory = members[0].trajectory.offset(GROUP_SPACING_M * (1 if member % 2 else -1), stride)
+            # each person starts at their own point of the gait cycle
+            phase = rng.random()
+            trajectory = Trajectory(trajectory.times, trajectory.xy, trajectory.heading, trajectory.cycles + phase,
+                                    trajectory.speed)
+            members.append(Person(shape, trajectory, reflectivity, behaviour, group, vest))
+        if frame is None:
+            frame = (members[0].trajectory.times >= 0.0) & (members[0].trajectory.times <= frame_period_s)
+        if all(_is_free(m, people, scene, preset.min_separation_m, frame) for m in members):
+            people.extend(members)
+    return people
+
+
+def _is_free(person: Person, others: list[Person], scene: Scene, separation_m: float, frame: np.ndarray) -> bool:
+    """True if `person` stays clear of obstacle footprints and of `others` during the frame."""
+    path = person.trajectory.xy[frame]
+    if len(scene.obstacles):
+        low = scene.obstacles[:, :2] - BODY_RADIUS_M
+        high = scene.obstacles[:, 2:] + BODY_RADIUS_M
+        inside = ((path[:, None, :] > low[None]) & (path[:, None, :] < high[None])).all(axis=2)
+        if inside.any():
+            return False
+    for other in others:
+        distance = np.linalg.norm(path - other.trajectory.xy[frame], axis=1).min()
+        if distance < separation_m:
+            return False
+    return True

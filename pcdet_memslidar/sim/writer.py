@@ -1,0 +1,142 @@
+"""Write a simulated domain as a KITTI-layout dataset: deterministic, resumable, sharded, parallel.
+
+    <out>/simulation.json                  domain preset, seed, package version and their fingerprint
+    <out>/training/velodyne|label_2|calib|metadata/<id>   via pcdet_memslidar.io.layout.write_frame
+    <out>/training/time_offset/<id>.bin    float32 (N,) time of each point [s] from the frame start, same order
+                                           as the velodyne file
+    <out>/ImageSets/train.txt, val.txt     the stable 70/30 split, written once all frames exist
+
+Frame i is made from the seed sequence (seed, i) only, so any split of the frames over workers, shards or
+interrupted runs gives byte-identical files. A frame is complete once its velodyne file exists (written last);
+complete frames are skipped. An output folder made with other settings is refused (fingerprint mismatch).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+from tqdm import tqdm
+
+import pcdet_memslidar
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
+from pcdet_memslidar.sim.bodies import BANK_PATH
+from pcdet_memslidar.sim.domains import DomainPreset
+from pcdet_memslidar.sim.frame import Frame, simulate_frame
+from pcdet_memslidar.sim.pattern import get_pattern
+from pcdet_memslidar.sim.sensor import get_sensor
+from pcdet_memslidar.utils.atomic import write_bytes, write_text
+
+SETTINGS_FILE = "simulation.json"
+
+
+def time_offset_path(layout: KittiLayout, frame_id: str) -> Path:
+    """training/time_offset/<id>.bin: float32 per-point time offsets [s] of a frame."""
+    return layout.training / "time_offset" / f"{frame_id}.bin"
+
+
+def frame_id(index: int) -> str:
+    return f"{index:06d}"
+
+
+def domain_settings(preset: DomainPreset, seed: int) -> dict:
+    """Everything that makes a domain's frames, with its sha256 fingerprint under 'fingerprint'."""
+    settings = dict(domain=preset.to_dict(), pattern=dataclasses.asdict(get_pattern(preset.pattern)),
+                    sensor=dataclasses.asdict(get_sensor(preset.sensor)), seed=int(seed),
+                    package_version=pcdet_memslidar.__version__,
+                    body_bank_sha256=hashlib.sha256(BANK_PATH.read_bytes()).hexdigest())
+    text = json.dumps(settings, sort_keys=True, default=float)
+    settings["fingerprint"] = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return json.loads(json.dumps(settings, default=float))
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """'I/N' -> (I, N), 0 <= I < N."""
+    try:
+        index, count = (int(part) for part in text.split("/"))
+    except ValueError:
+        raise ConfigError(f"--shard must look like I/N (e.g. 0/4), got '{text}'") from None
+    if not 0 <= index < count:
+        raise ConfigError(f"--shard {text}: need 0 <= I < N")
+    return index, count
+
+
+def write_simulated_frame(layout: KittiLayout, index: int, frame: Frame, fingerprint: str) -> None:
+    """Write frame `index`: its time offsets first, then the KITTI files (velodyne last)."""
+    name = frame_id(index)
+    metadata = dict(frame.metadata, fingerprint=fingerprint,
+                    time_offset_file=str(time_offset_path(layout, name).relative_to(layout.root)))
+    write_bytes(time_offset_path(layout, name), frame.time_offset.astype("<f4").tobytes())
+    write_frame(layout, name, frame.points, frame.names, frame.boxes, metadata)
+
+
+def _write_one(args) -> int:
+    """Simulate and write frame `index`; returns its number of points."""
+    preset, seed, index, root, fingerprint, threads = args
+    frame = simulate_frame(preset, seed, index, threads=threads)
+    write_simulated_frame(KittiLayout(root), index, frame, fingerprint)
+    return len(frame.points)
+
+
+def _check_settings(root: Path, settings: dict) -> None:
+    """Write <root>/simulation.json, or refuse a folder made with other settings."""
+    path = root / SETTINGS_FILE
+    if path.is_file():
+        try:
+            existing = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as error:
+            raise DataFormatError(path, f"invalid JSON ({error.msg}); delete the folder to regenerate",
+                                  error.lineno) from None
+        if existing.get("fingerprint") != settings["fingerprint"]:
+            raise DataFormatError(path, f"this folder holds data made with other settings (fingerprint "
+                                        f"{existing.get('fingerprint')}, asked for {settings['fingerprint']}: "
+                                        f"domain, seed, sensor, pattern or package version differ); choose "
+                                        f"another --out or delete the folder to regenerate")
+    else:
+        write_text(path, json.dumps(settings, sort_keys=True, indent=1) + "\n")
+
+
+def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
+                     shard: tuple[int, int] = (0, 1), progress: bool = True) -> dict:
+    """Make frames 0..frames-1 of `preset` (those of `shard` (I, N): index % N == I) under `out`.
+
+    Returns dict(written, skipped, points, complete): complete = all frames exist and ImageSets are written."""
+    root = Path(out)
+    settings = domain_settings(preset, seed)
+    _check_settings(root, settings)
+    layout = KittiLayout(root)
+    existing = set(layout.frame_ids())
+    todo, skipped = [], 0
+    for index in range(shard[0], frames, shard[1]):
+        name = frame_id(index)
+        if name not in existing:
+            todo.append(index)
+            continue
+        stored = json.loads(layout.metadata(name).read_text(encoding="utf-8")).get("fingerprint")
+        if stored != settings["fingerprint"]:
+            raise DataFormatError(layout.metadata(name), f"frame made with other settings (fingerprint {stored}, "
+                                                         f"asked for {settings['fingerprint']}); delete the folder")
+        skipped += 1
+    threads = 1 if workers > 1 else 0
+    jobs = [(preset, seed, index, str(root), settings["fingerprint"], threads) for index in todo]
+    bar = tqdm(total=len(jobs), desc=f"simulate {preset.name}", unit="frame", disable=not progress)
+    points = 0
+    if workers > 1 and len(jobs) > 1:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            for count in pool.map(_write_one, jobs, chunksize=4):
+                points += count
+                bar.update()
+    else:
+        for job in jobs:
+            points += _write_one(job)
+            bar.update()
+    bar.close()
+    complete = all(frame_id(i) in set(layout.frame_ids()) for i in range(frames))
+    if complete:
+        write_split(layout)
+    return dict(written=len(jobs), skipped=skipped, points=int(points), complete=complete,
+                fingerprint=settings["fingerprint"])

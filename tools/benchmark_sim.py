@@ -1,0 +1,165 @@
+"""Benchmark the simulator: speed per domain and the speed-vs-error trade-off of mesh detail and time handling.
+
+    python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2]
+
+Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after one
+warm-up frame per viewpoint: frames/s of whole frames (people, casting, sensor, labels, writing the KITTI files),
+rays/s, and the ratio of the whole-frame time to the pure ray-casting time of the same rays (all rays of the
+frame cast once against one prebuilt Open3D scene holding the static world and every person posed at
+mid-frame); then the wall time of `simulate_dataset` with --workers processes, start-up included.
+Part 2: for the frames of the paper target, every body detail level x time handling against the finest setting
+('full' mesh, each pulse at its own time): displacement of the pulses that hit a person in both, share of
+person pulses that hit a person in only one, and time per frame.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.io.layout import KittiLayout
+from pcdet_memslidar.sim.bodies import LODS, load_body_bank
+from pcdet_memslidar.sim.caster import body_scene
+from pcdet_memslidar.sim.domains import DOMAINS, get_domain
+from pcdet_memslidar.sim.frame import frame_rng, get_caster, simulate_frame
+from pcdet_memslidar.sim.pattern import get_pattern
+from pcdet_memslidar.sim.people import sample_people
+from pcdet_memslidar.sim.scenes import get_scene
+from pcdet_memslidar.sim.writer import domain_settings, simulate_dataset, write_simulated_frame
+from pcdet_memslidar.utils.open3d import import_open3d
+
+TIME_HANDLING = {"per pulse": 0.0, "10 ms slices": 0.01, "50 ms slices": 0.05, "one instant": None}
+
+
+def posed_world_triangles(bank, lod, person, time_s) -> np.ndarray:
+    """(T, 3, 3) triangles of `person` posed at `time_s`, in the ground frame."""
+    xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
+    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[0]
+    mesh = bank.meshes[lod]
+    rest = mesh.rest_vertices[person.shape][mesh.triangles]  # (T, 3, 3)
+    t = transforms[mesh.triangle_part]  # (T, 3, 4)
+    body = np.einsum("tij,tkj->tki", t[:, :, :3], rest) + t[:, None, :, 3]
+    c, s = np.cos(heading[0]), np.sin(heading[0])
+    world = body @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
+    world[..., :2] += xy[0]
+    return world
+
+
+def pure_cast_seconds(caster, scene_name, people, bank, lod, repeats=3) -> float:
+    """Seconds to cast all rays of a frame once against a prebuilt scene of the static world + posed people."""
+    o3d = import_open3d()
+    vertices, triangles, _ = get_scene(scene_name).triangles()
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+    for person in people:
+        world = posed_world_triangles(bank, lod, person, caster.frame_period_s / 2).reshape(-1, 3)
+        scene.add_triangles(o3d.core.Tensor(world.astype(np.float32)),
+                            o3d.core.Tensor(np.arange(len(world), dtype=np.uint32).reshape(-1, 3)))
+    rays = o3d.core.Tensor(np.concatenate([np.broadcast_to(caster.origin, caster.directions.shape),
+                                           caster.directions], 1).astype(np.float32))
+    scene.cast_rays(rays)  # builds the BVH
+    start = time.perf_counter()
+    for _ in range(repeats):
+        scene.cast_rays(rays)
+    return (time.perf_counter() - start) / repeats
+
+
+def frame_people(preset, seed, index, bank):
+    """The viewpoint and people of frame `index`, drawn exactly as simulate_frame draws them."""
+    rng = frame_rng(seed, index)
+    viewpoint = preset.viewpoints[int(rng.integers(len(preset.viewpoints)))]
+    pattern = get_pattern(preset.pattern)
+    people = sample_people(rng, preset, get_scene(viewpoint.scene), viewpoint.mount, pattern.hfov_deg,
+                           pattern.vfov_deg, pattern.frame_period_s, bank)
+    return viewpoint, people
+
+
+def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
+    bank = load_body_bank()
+    for viewpoint in preset.viewpoints:  # warm-up: static worlds built and cast once
+        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
+    simulate_frame(preset, seed, 10_000)
+    fingerprint = domain_settings(preset, seed)["fingerprint"]
+    with tempfile.TemporaryDirectory() as folder:
+        layout = KittiLayout(folder)
+        whole, pure, rays, people_count = 0.0, 0.0, 0, 0
+        for index in range(frames):
+            start = time.perf_counter()
+            frame = simulate_frame(preset, seed, index)
+            write_simulated_frame(layout, index, frame, fingerprint)
+            whole += time.perf_counter() - start
+            viewpoint, people = frame_people(preset, seed, index, bank)
+            caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
+            pure += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod)
+            rays += len(caster.directions)
+            people_count += len(people)
+        start = time.perf_counter()
+        simulate_dataset(preset, frames, Path(folder) / "parallel", seed=seed, workers=workers, progress=False)
+        parallel = time.perf_counter() - start
+    return dict(fps=frames / whole, rays_per_s=rays / whole, ratio=whole / pure, people=people_count / frames,
+                rays=rays / frames, parallel_fps=frames / parallel)
+
+
+def errors(preset, frames: int, seed: int = 0) -> list[tuple]:
+    bank = load_body_bank()
+    pattern = get_pattern(preset.pattern)
+    rows = []
+    reference = {}
+    settings = [("full", "per pulse")] + [(lod, handling) for lod in reversed(LODS) for handling in TIME_HANDLING
+                                          if (lod, handling) != ("full", "per pulse")]
+    for lod, handling in settings:
+        step = TIME_HANDLING[handling]
+        step = pattern.frame_period_s if step is None else step
+        displacement, mismatch, person_pulses, seconds = [], 0, 0, 0.0
+        body_scene(bank, lod)  # built once per process, not timed
+        for index in range(frames):
+            viewpoint, people = frame_people(preset, seed, index, bank)
+            caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, lod)
+            start = time.perf_counter()
+            hits = caster.cast_frame(people, step, preset.phase_steps)
+            seconds += time.perf_counter() - start
+            if (lod, handling) == ("full", "per pulse"):
+                reference[index] = hits
+                continue
+            ref = reference[index]
+            both = (ref.person >= 0) & (hits.person >= 0)
+            either = (ref.person >= 0) | (hits.person >= 0)
+            displacement.append(np.abs(hits.range[both] - ref.range[both]))
+            mismatch += int(either.sum() - both.sum())
+            person_pulses += int(either.sum())
+        if displacement:
+            d = np.concatenate(displacement)
+            rows.append((lod, handling, 100 * np.median(d), 100 * np.percentile(d, 90), 100 * mismatch / person_pulses,
+                         1000 * seconds / frames))
+        else:
+            rows.append((lod, handling, 0.0, 0.0, 0.0, 1000 * seconds / frames))
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=20, help="frames per domain for the speed table")
+    parser.add_argument("--error-frames", type=int, default=6, help="frames for the speed-vs-error table")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))
+    print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure cast':>16s} "
+          f"{'frames/s x' + str(args.workers) + ' workers':>22s}")
+    for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
+        r = speed(preset, args.frames, args.workers)
+        print(f"{preset.name:34s} {r['people']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} {r['rays_per_s'] / 1e6:8.2f} "
+              f"{r['ratio']:16.2f} {r['parallel_fps']:22.1f}")
+    print(f"\nspeed vs error ({args.error_frames} frames of the paper target; reference: 'full' mesh, per pulse; "
+          f"displacement of person hits in cm)")
+    print(f"{'mesh':8s} {'time handling':14s} {'median':>7s} {'p90':>7s} {'person pulses changed %':>24s} "
+          f"{'people cast ms/frame':>21s}")
+    for lod, handling, median, p90, changed, ms in errors(target, args.error_frames):
+        print(f"{lod:8s} {handling:14s} {median:7.2f} {p90:7.2f} {changed:24.1f} {ms:21.1f}")
+
+
+if __name__ == "__main__":
+    main()
