@@ -1,0 +1,73 @@
+"""Training augmentation, each step chosen by NAME from DATA_AUGMENTOR.AUG_CONFIG_LIST (OpenPCDet's names)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import ConfigError
+from ...geometry.boxes import limit_period
+from . import augmentor_utils
+from .database_sampler import DataBaseSampler, GtDatabase
+
+
+class DataAugmentor:
+    """Applies the configured augmentations in order; `databases` feeds gt_sampling, per source name."""
+
+    def __init__(self, augmentor_cfg, class_names: list[str], databases: dict[str, GtDatabase] | None = None):
+        disabled = set(augmentor_cfg.get("DISABLE_AUG_LIST", []))
+        self.queue = []
+        for config in augmentor_cfg.AUG_CONFIG_LIST:
+            if config.NAME in disabled:
+                continue
+            build = getattr(self, f"_build_{config.NAME}", None)
+            if build is None:
+                known = sorted(name[len("_build_"):] for name in dir(self) if name.startswith("_build_"))
+                raise ConfigError(f"DATA_AUGMENTOR: unknown augmentation {config.NAME!r}; known: {known}")
+            self.queue.append(build(config, class_names, databases or {}))
+
+    def forward(self, data_dict: dict, rng: np.random.Generator) -> dict:
+        """data_dict with points (N, 3+C), gt_boxes (M, 7), gt_names (M,), gt_boxes_mask (M,) bool -> augmented.
+
+        Boxes outside gt_boxes_mask (classes not trained) are dropped at the end; headings wrapped to [-pi, pi).
+        """
+        for step in self.queue:
+            data_dict = step(data_dict, rng)
+        gt_boxes = np.asarray(data_dict["gt_boxes"]).copy()
+        gt_boxes[:, 6] = limit_period(gt_boxes[:, 6], offset=0.5, period=2 * np.pi)
+        mask = data_dict.pop("gt_boxes_mask")
+        data_dict["gt_boxes"], data_dict["gt_names"] = gt_boxes[mask], np.asarray(data_dict["gt_names"])[mask]
+        return data_dict
+
+    @staticmethod
+    def _build_gt_sampling(config, class_names, databases):
+        return DataBaseSampler(config, class_names, databases)
+
+    @staticmethod
+    def _build_random_world_flip(config, class_names, databases):
+        axes = list(config.get("ALONG_AXIS_LIST", ["x"]))
+        if axes != ["x"]:
+            raise ConfigError(f"random_world_flip: only ALONG_AXIS_LIST ['x'] keeps a forward-looking sensor's "
+                              f"field of view, got {axes}")
+
+        def flip(data_dict, rng):
+            boxes, points = augmentor_utils.random_flip_along_x(data_dict["gt_boxes"], data_dict["points"], rng)
+            return {**data_dict, "gt_boxes": boxes, "points": points}
+        return flip
+
+    @staticmethod
+    def _build_random_world_rotation(config, class_names, databases):
+        rot_range = config.WORLD_ROT_ANGLE
+        rot_range = [-rot_range, rot_range] if np.isscalar(rot_range) else list(rot_range)
+
+        def rotate(data_dict, rng):
+            boxes, points = augmentor_utils.global_rotation(data_dict["gt_boxes"], data_dict["points"], rot_range, rng)
+            return {**data_dict, "gt_boxes": boxes, "points": points}
+        return rotate
+
+    @staticmethod
+    def _build_random_world_scaling(config, class_names, databases):
+        scale_range = list(config.WORLD_SCALE_RANGE)
+
+        def scale(data_dict, rng):
+            boxes, points = augmentor_utils.global_scaling(data_dict["gt_boxes"], data_dict["points"], scale_range, rng)
+            return {**data_dict, "gt_boxes": boxes, "points": points}
+        return scale

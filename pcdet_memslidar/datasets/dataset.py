@@ -1,0 +1,121 @@
+"""DatasetTemplate: OpenPCDet's dataset contract without OpenPCDet (numpy augmentation, spconv voxelisation).
+
+A subclass provides __len__, __getitem__ (which builds {points (N, 3+C), gt_names (M,), gt_boxes (M, 7), frame_id,
+metadata} and returns prepare_data(...)), evaluation and generate_prediction_dicts.
+"""
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .processor import DataProcessor, PointFeatureEncoder
+
+
+class DatasetTemplate(torch.utils.data.Dataset):
+    """Holds the point-cloud range, feature encoder, augmentor (training only) and processor of DATA_CONFIG."""
+
+    def __init__(self, dataset_cfg=None, class_names=None, training: bool = True, root_path=None, logger=None):
+        self.dataset_cfg = dataset_cfg
+        self.training = training
+        self.class_names = list(class_names)
+        self.logger = logger or logging.getLogger(__name__)
+        self.root_path = Path(root_path) if root_path is not None else Path(dataset_cfg.DATA_PATH)
+        self.point_cloud_range = np.array(dataset_cfg.POINT_CLOUD_RANGE, dtype=np.float32)
+        self.point_feature_encoder = PointFeatureEncoder(dataset_cfg.POINT_FEATURE_ENCODING, self.point_cloud_range)
+        self.data_augmentor = None  # set by the subclass once it knows its gt databases (training only)
+        self.data_processor = DataProcessor(dataset_cfg.DATA_PROCESSOR, self.point_cloud_range, training,
+                                            self.point_feature_encoder.num_point_features)
+        self.grid_size = self.data_processor.grid_size
+        self.voxel_size = self.data_processor.voxel_size
+        self.depth_downsample_factor = None
+        self.total_epochs = 0
+        self._merge_all_iters_to_one_epoch = False
+        self.rng = np.random.default_rng()
+        self._worker_seed = None
+
+    @property
+    def mode(self) -> str:
+        return "train" if self.training else "test"
+
+    def reseed(self, seed) -> None:
+        """Seed the generator behind augmentation and shuffling (an int, or a sequence of ints)."""
+        self.rng = np.random.default_rng(seed)
+
+    @property
+    def generator(self) -> np.random.Generator:
+        """The augmentation / shuffling generator. Inside a DataLoader worker it is reseeded from torch's seed of
+        that worker (new every epoch), whichever worker_init_fn the loader has (ours or OpenPCDet's)."""
+        info = torch.utils.data.get_worker_info()
+        if info is not None and self._worker_seed != info.seed:
+            self._worker_seed = info.seed
+            self.reseed(info.seed)
+        return self.rng
+
+    def merge_all_iters_to_one_epoch(self, merge: bool = True, epochs: int | None = None) -> None:
+        """Make one pass over the loader cover `epochs` epochs (OpenPCDet's --merge_all_iters_to_one_epoch)."""
+        self._merge_all_iters_to_one_epoch = merge
+        self.total_epochs = epochs if merge else 0
+
+    def prepare_data(self, data_dict: dict) -> dict | None:
+        """Augment (training), keep the trained classes, encode features, mask, shuffle and voxelise.
+
+        Input: points (N, 4), gt_names (M,), gt_boxes (M, 7), frame_id, metadata. Output adds gt_boxes (M, 8)
+        float32 with the 1-based class id in column 8, use_lead_xyz, voxels (V, P, C) float32, voxel_coords
+        (V, 3) int32 [z, y, x], voxel_num_points (V,) int32; drops gt_names. Returns None for a training frame
+        left without boxes (the caller replaces the frame).
+        """
+        if self.training:
+            if "gt_boxes" not in data_dict:
+                raise ValueError("training samples need gt_boxes")
+            gt_boxes_mask = np.array([name in self.class_names for name in data_dict["gt_names"]], dtype=bool)
+            data_dict = self.data_augmentor.forward({**data_dict, "gt_boxes_mask": gt_boxes_mask}, self.generator)
+        if data_dict.get("gt_boxes") is not None:
+            names = np.asarray(data_dict["gt_names"])
+            selected = np.array([name in self.class_names for name in names], dtype=bool)
+            classes = np.array([self.class_names.index(name) + 1 for name in names[selected]], dtype=np.float32)
+            boxes = np.asarray(data_dict["gt_boxes"], dtype=np.float32).reshape(-1, data_dict["gt_boxes"].shape[-1])
+            data_dict["gt_boxes"] = np.concatenate([boxes[selected, :7], classes[:, None]], axis=1)
+            data_dict["gt_names"] = names[selected]
+        data_dict["points"] = np.asarray(data_dict["points"], dtype=np.float32)
+        data_dict = self.point_feature_encoder.forward(data_dict)
+        data_dict = self.data_processor.forward(data_dict, self.generator)
+        if self.training and len(data_dict["gt_boxes"]) == 0:
+            return None
+        data_dict.pop("gt_names", None)
+        return data_dict
+
+    @staticmethod
+    def collate_batch(batch_list: list[dict], _unused: bool = False) -> dict:
+        """Samples -> one batch_dict with OpenPCDet's keys and dtypes.
+
+        points (sum N, 1+C) and voxel_coords (sum V, 4) get the sample index as first column; voxels and
+        voxel_num_points are concatenated; gt_boxes are zero-padded to (B, max M, 8) float32; metadata becomes a
+        (B,) object array of dicts; other keys are stacked; batch_size is added.
+        """
+        values = defaultdict(list)
+        for sample in batch_list:
+            for key, value in sample.items():
+                values[key].append(value)
+        batch = {}
+        for key, items in values.items():
+            if key in ("voxels", "voxel_num_points"):
+                batch[key] = np.concatenate(items, axis=0)
+            elif key in ("points", "voxel_coords"):
+                batch[key] = np.concatenate([np.pad(item, ((0, 0), (1, 0)), constant_values=index)
+                                             for index, item in enumerate(items)], axis=0)
+            elif key == "gt_boxes":
+                padded = np.zeros((len(items), max(len(item) for item in items), items[0].shape[-1]), dtype=np.float32)
+                for index, item in enumerate(items):
+                    padded[index, :len(item)] = item
+                batch[key] = padded
+            elif key == "metadata":
+                batch[key] = np.empty(len(items), dtype=object)
+                batch[key][:] = items
+            else:
+                batch[key] = np.stack(items, axis=0)
+        batch["batch_size"] = len(batch_list)
+        return batch

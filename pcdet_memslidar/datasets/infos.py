@@ -1,0 +1,144 @@
+"""Info files and the ground-truth database of each domain, and the `memslidar create-infos` command.
+
+Per domain folder (KITTI layout, see data/README.md):
+    memslidar_infos.pkl     {'fingerprint': str, 'infos': [per-frame info, sorted by frame id]}; an info is
+                            {'frame_id', 'point_cloud': {'num_features': 4, 'lidar_idx'},
+                             'annos': {'name' (M,) str, 'gt_boxes_lidar' (M, 7) float32, 'num_points_in_gt' (M,) int32}}
+    gt_database/<frame>_<class>_<i>.bin   float32 (K, 4) points of object i, relative to its box centre
+    memslidar_dbinfos.pkl   {class: [{'name', 'path' (relative to the domain folder), 'frame_id', 'gt_idx',
+                             'box3d_lidar' (7,), 'num_points_in_gt', 'difficulty'}]}
+The fingerprint (frame ids, point-file sizes, label contents) tells whether the infos still match the frames.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import pickle
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from ..config import load_config
+from ..errors import DataFormatError
+from ..geometry.boxes import points_in_boxes_mask
+from ..io.layout import KittiLayout, read_frame
+from ..utils.atomic import atomic_dir, write_bytes
+from .grid import check_config_grid
+from .mixing import Source, make_frames_command, select_frames, split_frames, split_sources
+
+INFO_FILE = "memslidar_infos.pkl"
+DBINFO_FILE = "memslidar_dbinfos.pkl"
+DATABASE_DIR = "gt_database"
+CREATE_COMMAND = "`memslidar create-infos --cfg <the config you train or test with>`"
+
+
+def layout_fingerprint(layout: KittiLayout) -> str:
+    """Hash of the frame ids, their point-file sizes and their label files' contents."""
+    digest = hashlib.sha256()
+    for frame_id in layout.frame_ids():
+        label = layout.label(frame_id)
+        digest.update(f"{frame_id}:{layout.velodyne(frame_id).stat().st_size}:".encode())
+        digest.update(label.read_bytes() if label.is_file() else b"<no label>")
+    return digest.hexdigest()
+
+
+def _check_domain(source: Source) -> KittiLayout:
+    layout = KittiLayout(source.root)
+    if not layout.frame_ids():
+        command = make_frames_command(source.name, source.root, source.count)
+        raise DataFormatError(layout.training / "velodyne", f"source '{source.name}' has no frames: make them with "
+                                                            f"{command}")
+    return layout
+
+
+def create_domain_infos(source: Source, force: bool = False) -> list[dict]:
+    """Write (or keep, when up to date and not `force`) the infos and gt database of `source`'s folder."""
+    layout = _check_domain(source)
+    info_path = source.root / INFO_FILE
+    fingerprint = layout_fingerprint(layout)
+    if info_path.is_file() and not force:
+        stored = pickle.loads(info_path.read_bytes())
+        if stored.get("fingerprint") == fingerprint:
+            return stored["infos"]
+    info_path.unlink(missing_ok=True)
+    infos, db_infos = [], defaultdict(list)
+    with atomic_dir(source.root / DATABASE_DIR) as database:
+        for frame_id in tqdm(layout.frame_ids(), desc=f"infos + gt database of {source.name}", leave=False):
+            frame = read_frame(layout, frame_id)
+            points, boxes, names = frame["points"], frame["gt_boxes"], np.asarray(frame["gt_names"])
+            inside = points_in_boxes_mask(points, boxes)
+            infos.append({
+                "frame_id": frame_id,
+                "point_cloud": {"num_features": points.shape[1], "lidar_idx": frame_id},
+                "annos": {"name": names, "gt_boxes_lidar": boxes.astype(np.float32),
+                          "num_points_in_gt": inside.sum(axis=0).astype(np.int32)},
+            })
+            for index, (name, box) in enumerate(zip(names, boxes)):
+                object_points = points[inside[:, index]].astype(np.float32)
+                object_points[:, :3] -= box[:3]
+                file_name = f"{frame_id}_{name}_{index}.bin"
+                object_points.tofile(database / file_name)
+                db_infos[str(name)].append({
+                    "name": str(name), "path": f"{DATABASE_DIR}/{file_name}", "frame_id": frame_id, "gt_idx": index,
+                    "box3d_lidar": box.astype(np.float32), "num_points_in_gt": int(len(object_points)),
+                    "difficulty": 0,
+                })
+    write_bytes(source.root / DBINFO_FILE, pickle.dumps(dict(db_infos)))
+    write_bytes(info_path, pickle.dumps({"fingerprint": fingerprint, "infos": infos}))
+    return infos
+
+
+def load_domain_infos(source: Source) -> list[dict]:
+    """The infos of `source`'s folder; DataFormatError with the command to run when missing or out of date."""
+    layout = _check_domain(source)
+    info_path = source.root / INFO_FILE
+    if not info_path.is_file():
+        raise DataFormatError(info_path, f"info file of source '{source.name}' is missing: run {CREATE_COMMAND}")
+    stored = pickle.loads(info_path.read_bytes())
+    if stored.get("fingerprint") != layout_fingerprint(layout):
+        raise DataFormatError(info_path, f"info file of source '{source.name}' no longer matches the frames in "
+                                         f"{source.root} (frames were added or changed): run {CREATE_COMMAND}")
+    return stored["infos"]
+
+
+def load_db_infos(source: Source) -> dict:
+    """The gt database infos {class: [...]} of `source`'s folder."""
+    path = source.root / DBINFO_FILE
+    if not path.is_file():
+        raise DataFormatError(path, f"gt database of source '{source.name}' is missing: run {CREATE_COMMAND}")
+    return pickle.loads(path.read_bytes())
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cfg", "--cfg_file", dest="cfg_file", required=True,
+                        help="experiment config (cfgs/m3.yaml) or dataset config")
+    parser.add_argument("--profile", default=None, help="paper | quick | smoke (same as --set PROFILE ...)")
+    parser.add_argument("--force", action="store_true", help="rebuild infos even when they match the frames")
+    parser.add_argument("--set", dest="set_cfgs", default=None, nargs=argparse.REMAINDER,
+                        help="config overrides KEY VALUE ...")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Create the infos of every source the config's splits read, then report each split's frame counts."""
+    cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
+    check_config_grid(cfg)
+    data_cfg = cfg.DATA_CONFIG if "DATA_CONFIG" in cfg else cfg
+    data_path = Path(data_cfg.DATA_PATH)
+    print(f"profile {cfg.get('PROFILE', 'paper')}, data {data_path}")
+    sources = {split: split_sources(data_cfg, split, data_path) for split in ("train", "val", "test")}
+    infos = {}
+    for source in (source for split_list in sources.values() for source in split_list):
+        if source.root not in infos:
+            infos[source.root] = create_domain_infos(source, force=args.force)
+    for split, split_list in sources.items():
+        for source in split_list:
+            frame_ids = [info["frame_id"] for info in infos[source.root]]
+            chosen = set(split_frames(select_frames(source, frame_ids, source.root / INFO_FILE), split,
+                                      float(data_cfg.MIX.get("VAL_FRACTION", 0.3)),
+                                      int(data_cfg.MIX.get("SPLIT_SEED", 0))))
+            boxes = sum(len(info["annos"]["name"]) for info in infos[source.root] if info["frame_id"] in chosen)
+            print(f"{split:>5}  {source.name:<12} {len(chosen):6d} of {len(frame_ids):6d} frames, {boxes:7d} boxes  "
+                  f"({source.root})")
+    return 0

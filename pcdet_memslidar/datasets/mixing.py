@@ -1,0 +1,152 @@
+"""Compose a training set from named sources (Table 2: M1-M4) and keep the sim/real ratio inside batches.
+
+Config (DATA_CONFIG.MIX):
+    MIX: {TOTAL: 2100, VAL_FRACTION: 0.3, SPLIT_SEED: 0, BALANCE_BATCHES: False,
+          SOURCES: [{NAME: sim, RATIO: 0.5}, {NAME: real, RATIO: 0.5, PATH: optional/folder}]}
+A source gives RATIO (of TOTAL) or COUNT (frames). Each source takes its first `count` frames in sorted id order (so
+adding frames never changes which ones are taken), split 70/30 by io.layout.stable_split.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import ConfigError, DataFormatError
+from ..io.layout import stable_split
+
+BUNDLED_DOMAINS = ("sim", "real", "industrial")
+
+
+@dataclass(frozen=True)
+class Source:
+    """One named source: its dataset folder (KITTI layout) and how many of its frames it gives (None: all)."""
+
+    name: str
+    root: Path
+    count: int | None
+
+
+def source_counts(mix_cfg) -> dict[str, int]:
+    """{source name: frames} from RATIO (largest-remainder rounding so the counts sum to TOTAL) or COUNT."""
+    sources = list(mix_cfg.get("SOURCES") or [])
+    if not sources:
+        raise ConfigError("DATA_CONFIG.MIX.SOURCES is empty: name at least one source, e.g. {NAME: real, RATIO: 1.0}")
+    names = [source.get("NAME") for source in sources]
+    if None in names or len(set(names)) != len(names):
+        raise ConfigError(f"DATA_CONFIG.MIX.SOURCES: every source needs a unique NAME, got {names}")
+    with_ratio = ["RATIO" in source for source in sources]
+    if any("RATIO" in source and "COUNT" in source for source in sources) or (any(with_ratio) and not all(with_ratio)):
+        raise ConfigError("DATA_CONFIG.MIX.SOURCES: give every source a RATIO (of TOTAL) or every source a COUNT, "
+                          f"not both; got {[dict(source) for source in sources]}")
+    if not all(with_ratio):
+        counts = {source.NAME: int(source.COUNT) for source in sources}
+        if min(counts.values()) < 0:
+            raise ConfigError(f"DATA_CONFIG.MIX.SOURCES: COUNT must be >= 0, got {counts}")
+        return counts
+    total = int(mix_cfg.get("TOTAL", 0))
+    ratios = np.array([float(source.RATIO) for source in sources])
+    if total <= 0 or (ratios < 0).any() or not math.isclose(ratios.sum(), 1.0, abs_tol=1e-6):
+        raise ConfigError(f"DATA_CONFIG.MIX: TOTAL must be > 0 and the RATIOs >= 0 and sum to 1; got TOTAL {total}, "
+                          f"RATIOs {dict(zip(names, ratios.tolist()))}")
+    exact = ratios * total
+    counts = np.floor(exact + 1e-9).astype(np.int64)
+    for index in np.argsort(-(exact - counts), kind="stable")[: total - counts.sum()]:
+        counts[index] += 1
+    return dict(zip(names, counts.tolist()))
+
+
+def resolve_sources(mix_cfg, data_path: Path) -> list[Source]:
+    """The mix's sources with their folders (PATH, relative to DATA_PATH, else DATA_PATH/<NAME>) and counts."""
+    counts = source_counts(mix_cfg)
+    return [Source(source.NAME, data_path / source.get("PATH", source.NAME), counts[source.NAME])
+            for source in mix_cfg.SOURCES]
+
+
+def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
+    """Sources of a split: 'train' / 'val' read the MIX sources with frames, 'test' reads all of TEST_SOURCE."""
+    if split in ("train", "val"):
+        return [source for source in resolve_sources(data_cfg.MIX, data_path) if source.count > 0]
+    if split == "test":
+        test = data_cfg.TEST_SOURCE
+        return [Source(test.NAME, data_path / test.get("PATH", test.NAME), None)]
+    raise ConfigError(f"DATA_CONFIG.DATA_SPLIT: unknown split {split!r}; use train, val (the mix) or test "
+                      f"(DATA_CONFIG.TEST_SOURCE)")
+
+
+def make_frames_command(name: str, root: Path, frames: int | None) -> str:
+    """The command that creates `frames` frames (None: the domain preset's number) of source `name` in `root`."""
+    importing = f"`memslidar import --format <format> --src <recordings> --out {root}`"
+    if name in BUNDLED_DOMAINS:
+        count = "" if frames is None else f" --frames {frames}"
+        return f"`memslidar simulate --domain {name}{count} --out {root}` (or bring recordings: {importing})"
+    return f"{importing} with {'annotated frames' if frames is None else f'at least {frames} annotated frames'}"
+
+
+def select_frames(source: Source, frame_ids: list[str], where: Path) -> list[str]:
+    """The first `source.count` (None: all) of the sorted frame ids; DataFormatError naming `where` if too few."""
+    frame_ids = sorted(frame_ids)
+    if source.count is None:
+        return frame_ids
+    if len(frame_ids) < source.count:
+        command = make_frames_command(source.name, source.root, source.count)
+        raise DataFormatError(where, f"source '{source.name}' has {len(frame_ids)} frames but the mix needs "
+                                     f"{source.count}: make them with {command}, then re-run "
+                                     f"`memslidar create-infos --cfg <your cfg>`")
+    return frame_ids[: source.count]
+
+
+def split_frames(frame_ids: list[str], split: str, val_fraction: float, seed: int) -> list[str]:
+    """The 'train' or 'val' part of frame_ids (stable_split), or all of them for any other split name."""
+    if split not in ("train", "val"):
+        return sorted(frame_ids)
+    train, val = stable_split(frame_ids, val_fraction=val_fraction, seed=seed)
+    return train if split == "train" else val
+
+
+class MixedBatchSampler(torch.utils.data.Sampler):
+    """Batches whose share of each source matches the mix: every sample once per epoch, sources interleaved.
+
+    Each source's indices are shuffled (seed + epoch), sample k of a source with n samples gets the key
+    (k + 0.5) / n, and all samples in key order are cut into batches, so every batch holds each source in
+    proportion to its size, within one sample. With num_replicas > 1 each rank takes every num_replicas-th batch
+    (the list is padded by repeating its start so all ranks get the same number of batches).
+    """
+
+    def __init__(self, sources: list[str], batch_size: int, seed: int = 0, drop_last: bool = False,
+                 num_replicas: int = 1, rank: int = 0):
+        self.sources = np.asarray(sources)
+        self.batch_size, self.seed, self.drop_last = int(batch_size), int(seed), drop_last
+        self.num_replicas, self.rank = int(num_replicas), int(rank)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def _all_batches(self) -> list[list[int]]:
+        rng = np.random.default_rng([self.seed, self.epoch])
+        keys, indices = [], []
+        for name in np.unique(self.sources):
+            members = rng.permutation(np.flatnonzero(self.sources == name))
+            keys.append((np.arange(len(members)) + 0.5) / len(members))
+            indices.append(members)
+        order = np.concatenate(indices)[np.argsort(np.concatenate(keys), kind="stable")]
+        batches = [order[i:i + self.batch_size].tolist() for i in range(0, len(order), self.batch_size)]
+        if self.drop_last and batches and len(batches[-1]) < self.batch_size:
+            batches.pop()
+        return batches
+
+    def __iter__(self):
+        batches = self._all_batches()
+        if self.num_replicas > 1:
+            per_rank = math.ceil(len(batches) / self.num_replicas)
+            padded = [batches[i % len(batches)] for i in range(per_rank * self.num_replicas)]
+            batches = padded[self.rank::self.num_replicas]
+        return iter(batches)
+
+    def __len__(self) -> int:
+        batches = len(self.sources) / self.batch_size
+        return math.ceil((math.floor(batches) if self.drop_last else math.ceil(batches)) / self.num_replicas)

@@ -1,0 +1,5 @@
+"""Point feature encoding and data processing (range mask, shuffle, voxelisation)."""
+from .data_processor import DataProcessor
+from .point_feature_encoder import PointFeatureEncoder
+
+__all__ = ["DataProcessor", "PointFeatureEncoder"]

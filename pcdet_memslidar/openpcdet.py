@@ -1,0 +1,85 @@
+"""Run OpenPCDet's own, unmodified tools/train.py and tools/test.py on our dataset and cfgs.
+
+    cd /path/to/OpenPCDet/tools
+    python -m pcdet_memslidar.openpcdet train.py --cfg_file cfgs/memslidar/m3.yaml --set PROFILE quick
+
+OpenPCDet has no plugin hook, so this launcher registers first and then runs the script as __main__ (runpy):
+- MEMSLidarDataset goes into pcdet.datasets.__all__, the registry its build_dataloader reads;
+- pcdet.config.cfg_from_yaml_file loads with our semantics (`_BASE_CONFIG_` and DATA_PATH relative to the file
+  that names them, at any depth), applies the config's profile and checks the voxel grid;
+- pcdet.config.cfg_from_list applies `--set PROFILE quick` (after the other --set values, which then win again).
+"""
+from __future__ import annotations
+
+import runpy
+import sys
+from pathlib import Path
+
+USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
+
+
+def register() -> None:
+    """Register MEMSLidarDataset and our config semantics with the importable `pcdet` (idempotent)."""
+    try:
+        import pcdet.config
+        import pcdet.datasets
+    except ImportError as error:
+        raise ImportError(f"OpenPCDet is not importable ({error}): install it in this environment (in the OpenPCDet "
+                          f"checkout: `python setup.py develop`), or use the standalone tools (tools/train.py, "
+                          f"`memslidar train`)") from error
+
+    from .datasets import MEMSLidarDataset
+
+    pcdet.datasets.__all__["MEMSLidarDataset"] = MEMSLidarDataset
+    if not getattr(pcdet.config.cfg_from_list, "memslidar", False):
+        pcdet.config.cfg_from_yaml_file = _cfg_from_yaml_file
+        pcdet.config.cfg_from_list = _profile_aware_cfg_from_list(pcdet.config.cfg_from_list)
+
+
+def _cfg_from_yaml_file(cfg_file, config):
+    """OpenPCDet's cfg_from_yaml_file(cfg_file, config) with our path rules, the config's profile and grid check."""
+    from .config import apply_profile, cfg_from_yaml_file
+    from .datasets.grid import check_config_grid
+
+    cfg_from_yaml_file(cfg_file, merge_to=config)
+    if "PROFILES" in config:
+        apply_profile(config)
+    check_config_grid(config)
+    return config
+
+
+def _profile_aware_cfg_from_list(original):
+    """Wrap OpenPCDet's cfg_from_list: set, apply the (possibly new) PROFILE, set again so --set values win."""
+    from .config import apply_profile
+    from .datasets.grid import check_config_grid
+
+    def cfg_from_list(cfg_list, config):
+        original(cfg_list, config)
+        if "PROFILES" in config:
+            apply_profile(config)
+            original(cfg_list, config)
+        check_config_grid(config)
+
+    cfg_from_list.memslidar = True
+    return cfg_from_list
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Register, then run an OpenPCDet script with the remaining arguments as its command line."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(USAGE)
+        return 0 if argv else 2
+    script = Path(argv[0]).resolve()
+    if not script.is_file():
+        print(f"{argv[0]}: no such script. {USAGE}", file=sys.stderr)
+        return 2
+    register()
+    sys.argv = [str(script), *argv[1:]]
+    sys.path.insert(0, str(script.parent))  # the script's own folder, as `python script.py` would (train_utils/ ...)
+    runpy.run_path(str(script), run_name="__main__")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
