@@ -1,0 +1,102 @@
+"""Sparse 3D backbone of SECOND (spconv 2.x), OpenPCDet's VoxelBackBone8x with its state-dict layout."""
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+import spconv.pytorch as spconv
+from torch import nn
+
+from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
+
+patch_spconv()
+_batch_norm = partial(nn.BatchNorm1d, eps=1e-3, momentum=0.01)
+
+
+def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: str, stride=1, padding=0,
+                 conv_type: str = "subm") -> spconv.SparseSequential:
+    """Bias-free sparse conv + BatchNorm + ReLU (biased sparse convs break in eval mode on CPU, spconv #719)."""
+    if conv_type == "subm":
+        conv = spconv.SubMConv3d(in_channels, out_channels, kernel_size, bias=False, indice_key=indice_key)
+    elif conv_type == "spconv":
+        conv = spconv.SparseConv3d(in_channels, out_channels, kernel_size, stride=stride, padding=padding,
+                                   bias=False, indice_key=indice_key)
+    else:
+        raise ValueError(f"unknown sparse conv type '{conv_type}': use 'subm' or 'spconv'")
+    return spconv.SparseSequential(conv, _batch_norm(out_channels), nn.ReLU())
+
+
+def output_spatial_shape(sparse_shape) -> list[int]:
+    """(z, y, x) cells of VoxelBackBone8x's output for an input of `sparse_shape` (z, y, x) cells."""
+    z, y, x = sparse_shape
+    for _ in range(2):  # conv2, conv3: kernel 3, stride 2, padding 1
+        z, y, x = ((n + 2 - 3) // 2 + 1 for n in (z, y, x))
+    z, y, x = (z - 3) // 2 + 1, (y + 2 - 3) // 2 + 1, (x + 2 - 3) // 2 + 1  # conv4: no z padding
+    return [(z - 3) // 2 + 1, y, x]  # conv_out: kernel (3, 1, 1), stride (2, 1, 1)
+
+
+def sparse_output_depth(depth_cells: int) -> int:
+    """Depth (z cells) of VoxelBackBone8x's output for a grid `depth_cells` voxels deep (40 -> 2)."""
+    return output_spatial_shape([depth_cells + 1, 1, 1])[0]
+
+
+class VoxelBackBone8x(nn.Module):
+    """Sparse convs 16-32-64-64 channels, 8x downsampling, then a (3,1,1) z-conv to 128 channels.
+
+    The sparse convs run on one torch thread: spconv's CPU kernels race with more (see spconv_cpu).
+    """
+
+    def __init__(self, model_cfg, input_channels: int, grid_size, **kwargs):
+        super().__init__()
+        self.model_cfg = model_cfg
+        self.sparse_shape = (np.asarray(grid_size)[::-1] + [1, 0, 0]).tolist()  # (z + 1, y, x)
+        self.conv_input = spconv.SparseSequential(
+            spconv.SubMConv3d(input_channels, 16, 3, padding=1, bias=False, indice_key="subm1"),
+            _batch_norm(16), nn.ReLU())
+        self.conv1 = spconv.SparseSequential(sparse_block(16, 16, 3, padding=1, indice_key="subm1"))
+        self.conv2 = spconv.SparseSequential(
+            sparse_block(16, 32, 3, stride=2, padding=1, indice_key="spconv2", conv_type="spconv"),
+            sparse_block(32, 32, 3, padding=1, indice_key="subm2"),
+            sparse_block(32, 32, 3, padding=1, indice_key="subm2"))
+        self.conv3 = spconv.SparseSequential(
+            sparse_block(32, 64, 3, stride=2, padding=1, indice_key="spconv3", conv_type="spconv"),
+            sparse_block(64, 64, 3, padding=1, indice_key="subm3"),
+            sparse_block(64, 64, 3, padding=1, indice_key="subm3"))
+        self.conv4 = spconv.SparseSequential(
+            sparse_block(64, 64, 3, stride=2, padding=(0, 1, 1), indice_key="spconv4", conv_type="spconv"),
+            sparse_block(64, 64, 3, padding=1, indice_key="subm4"),
+            sparse_block(64, 64, 3, padding=1, indice_key="subm4"))
+        self.conv_out = spconv.SparseSequential(
+            spconv.SparseConv3d(64, 128, (3, 1, 1), stride=(2, 1, 1), padding=model_cfg.get("last_pad", 0),
+                                bias=False, indice_key="spconv_down2"),
+            _batch_norm(128), nn.ReLU())
+        self.num_point_features = 128
+        self.backbone_channels = {"x_conv1": 16, "x_conv2": 32, "x_conv3": 64, "x_conv4": 64}
+
+    def forward(self, batch_dict: dict) -> dict:
+        """voxel_features (V, C), voxel_coords (V, 4) [b, z, y, x] -> encoded_spconv_tensor (stride 8).
+
+        A batch without any voxel (spconv cannot take one) gives an empty output tensor, i.e. an all-zero map.
+        """
+        features = batch_dict["voxel_features"]
+        batch_dict.update({"encoded_spconv_tensor_stride": 8,
+                           "multi_scale_3d_strides": {"x_conv1": 1, "x_conv2": 2, "x_conv3": 4, "x_conv4": 8}})
+        if features.shape[0] == 0:
+            batch_dict["encoded_spconv_tensor"] = spconv.SparseConvTensor(
+                features.new_zeros(0, self.num_point_features), batch_dict["voxel_coords"].new_zeros(0, 4).int(),
+                output_spatial_shape(self.sparse_shape), batch_dict["batch_size"])
+            return batch_dict
+        with single_thread():
+            x = spconv.SparseConvTensor(features=features,
+                                        indices=batch_dict["voxel_coords"].int(),
+                                        spatial_shape=self.sparse_shape, batch_size=batch_dict["batch_size"])
+            x = self.conv_input(x)
+            x_conv1 = self.conv1(x)
+            x_conv2 = self.conv2(x_conv1)
+            x_conv3 = self.conv3(x_conv2)
+            x_conv4 = self.conv4(x_conv3)
+            out = self.conv_out(x_conv4)
+        batch_dict["encoded_spconv_tensor"] = out
+        batch_dict["multi_scale_3d_features"] = {"x_conv1": x_conv1, "x_conv2": x_conv2, "x_conv3": x_conv3,
+                                                 "x_conv4": x_conv4}
+        return batch_dict

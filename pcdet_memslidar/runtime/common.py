@@ -1,0 +1,56 @@
+"""Process set-up shared by training and testing: seeds, torch threads, device, logger."""
+from __future__ import annotations
+
+import logging
+import os
+import random
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def set_random_seed(seed: int) -> None:
+    """Seed Python, numpy and torch (all devices); deterministic cuDNN."""
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+    torch.backends.cudnn.deterministic = True
+    torch.backends.cudnn.benchmark = False
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask, not the machine's count)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def set_torch_threads(local_world_size: int = 1) -> int:
+    """Give each of the `local_world_size` processes on this machine an equal share of the free cores;
+    over-subscribed threads are many times slower than one thread per core. Returns the thread count."""
+    threads = max(1, available_cores() // max(1, local_world_size))
+    torch.set_num_threads(threads)
+    return threads
+
+
+def get_device(local_rank: int = 0) -> torch.device:
+    """cuda:<local_rank> when CUDA is available, else the CPU."""
+    return torch.device("cuda", local_rank) if torch.cuda.is_available() else torch.device("cpu")
+
+
+def create_logger(log_file: str | Path | None = None, rank: int = 0, name: str = "pcdet_memslidar") -> logging.Logger:
+    """Logger printing to the console (and to `log_file`) on rank 0; quiet (errors only) on other ranks."""
+    logger = logging.getLogger(name)
+    logger.setLevel(logging.INFO if rank == 0 else logging.ERROR)
+    logger.propagate = False
+    for handler in list(logger.handlers):
+        logger.removeHandler(handler)
+        handler.close()
+    formatter = logging.Formatter("%(asctime)s  %(levelname)5s  %(message)s")
+    handlers: list[logging.Handler] = [logging.StreamHandler()]
+    if log_file is not None and rank == 0:
+        Path(log_file).parent.mkdir(parents=True, exist_ok=True)
+        handlers.append(logging.FileHandler(log_file))
+    for handler in handlers:
+        handler.setFormatter(formatter)
+        logger.addHandler(handler)
+    return logger

@@ -1,0 +1,108 @@
+"""The training loop: epochs of forward, backward, gradient clipping, optimizer and schedule steps, with
+tensorboard scalars, tqdm progress and OpenPCDet-style checkpoints (checkpoint_epoch_N.pth, latest_model.pth)."""
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from pathlib import Path
+
+import torch
+import tqdm
+
+from pcdet_memslidar.models import load_data_to_device
+from pcdet_memslidar.runtime.checkpoint import checkpoint_state, list_checkpoints, save_checkpoint, unwrap
+
+
+def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: float, device,
+                   scaler: torch.amp.GradScaler | None = None) -> tuple[float, dict]:
+    """One optimisation step on `batch` (an OpenPCDet batch_dict). Returns (loss, tb_dict)."""
+    model.train()
+    load_data_to_device(batch, device)
+    optimizer.zero_grad(set_to_none=True)
+    autocast = torch.autocast("cuda", dtype=torch.float16) if scaler is not None else contextlib.nullcontext()
+    with autocast:
+        ret_dict, tb_dict, _ = model(batch)
+        loss = ret_dict["loss"].mean()
+    if scaler is not None:
+        scaler.scale(loss).backward()
+        scaler.unscale_(optimizer)
+    else:
+        loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.parameters(), grad_norm_clip)
+    if scaler is not None:
+        scaler.step(optimizer)
+        scaler.update()
+    else:
+        optimizer.step()
+    lr_scheduler.step()
+    unwrap(model).update_global_step()
+    return loss.item(), tb_dict
+
+
+def _batches(train_loader, train_sampler, epoch: int, state: dict):
+    """Endless batches; the sampler gets the epoch of each new pass (shuffling differs per pass)."""
+    while True:
+        if train_sampler is not None:
+            train_sampler.set_epoch(epoch + state["passes"])
+        state["passes"] += 1
+        yield from train_loader
+
+
+def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_epoch: int, total_epochs: int,
+                start_iter: int, rank: int, tb_log, ckpt_save_dir: str | Path, device, train_sampler=None,
+                ckpt_save_interval: int = 1, max_ckpt_save_num: int = 50, merge_all_iters_to_one_epoch: bool = False,
+                logger: logging.Logger | None = None, logger_iter_interval: int = 50,
+                ckpt_save_time_interval: float = 300, use_tqdm_to_record: bool = False,
+                use_amp: bool = False) -> int:
+    """Train from `start_epoch` to `total_epochs`; rank 0 writes checkpoints and logs. Returns the iteration
+    count reached. With merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts."""
+    logger = logger or logging.getLogger(__name__)
+    ckpt_save_dir = Path(ckpt_save_dir)
+    accumulated_iter = start_iter
+    iters_per_epoch = len(train_loader) // max(total_epochs, 1) if merge_all_iters_to_one_epoch else len(train_loader)
+    if iters_per_epoch == 0:
+        raise ValueError("the training split gives no batch: add frames or lower --batch_size")
+    scaler = torch.amp.GradScaler("cuda") if use_amp and torch.device(device).type == "cuda" else None
+    if use_amp and scaler is None:
+        logger.info("--use_amp is ignored on the CPU (spconv has no CPU half-precision kernels)")
+    state = {"passes": 0}
+    batches = _batches(train_loader, train_sampler, start_epoch, state)
+    show_bar = rank == 0 and not use_tqdm_to_record
+    last_save = time.time()
+    for epoch in tqdm.trange(start_epoch, total_epochs, desc="epochs", dynamic_ncols=True, disable=not show_bar):
+        epoch_start = time.time()
+        with tqdm.tqdm(total=iters_per_epoch, desc="train", leave=False, dynamic_ncols=True,
+                       disable=not show_bar) as bar:
+            for step in range(iters_per_epoch):
+                loss, tb_dict = train_one_step(model, optimizer, lr_scheduler, next(batches),
+                                               optim_cfg.GRAD_NORM_CLIP, device, scaler)
+                accumulated_iter += 1
+                lr = optimizer.param_groups[0]["lr"]
+                bar.set_postfix(loss=f"{loss:.3f}", lr=f"{lr:.2e}")
+                bar.update()
+                if rank != 0:
+                    continue
+                if tb_log is not None:
+                    tb_log.add_scalar("train/loss", loss, accumulated_iter)
+                    tb_log.add_scalar("meta_data/learning_rate", lr, accumulated_iter)
+                    for key, value in tb_dict.items():
+                        tb_log.add_scalar(f"train/{key}", value, accumulated_iter)
+                if use_tqdm_to_record and (step + 1) % logger_iter_interval == 0:
+                    rate = (time.time() - epoch_start) / (step + 1)
+                    logger.info(f"epoch {epoch + 1}/{total_epochs} iter {step + 1}/{iters_per_epoch} "
+                                f"loss {loss:.4f} lr {lr:.3e} {rate:.2f} s/iter")
+                if time.time() - last_save > ckpt_save_time_interval:
+                    save_checkpoint(checkpoint_state(model, optimizer, epoch, accumulated_iter),
+                                    ckpt_save_dir / "latest_model.pth")
+                    last_save = time.time()
+        trained_epoch = epoch + 1
+        if rank == 0:
+            logger.info(f"epoch {trained_epoch}/{total_epochs}: loss {loss:.4f}, {time.time() - epoch_start:.1f} s")
+            if trained_epoch % ckpt_save_interval == 0 or trained_epoch == total_epochs:
+                existing = list_checkpoints(ckpt_save_dir)
+                for old in existing[:max(0, len(existing) - max_ckpt_save_num + 1)]:
+                    old.unlink()
+                save_checkpoint(checkpoint_state(model, optimizer, trained_epoch, accumulated_iter),
+                                ckpt_save_dir / f"checkpoint_epoch_{trained_epoch}.pth")
+    return accumulated_iter

@@ -1,0 +1,103 @@
+"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, and the
+CPU patch is idempotent."""
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from torch.nn import functional as F
+
+sys.path.insert(0, str(Path(__file__).parent))
+from second_fixtures import second_model_cfg  # noqa: E402
+
+from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x  # noqa: E402
+from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread  # noqa: E402
+
+GRID = [64, 48, 40]  # x, y, z cells
+
+
+def _dense_block(x, mask, sequential):
+    """One spconv SparseSequential(conv, BatchNorm1d, ReLU) (eval mode) on dense (1, C, D, H, W) features."""
+    conv, norm = sequential[0], sequential[1]
+    weight = conv.weight.permute(0, 4, 1, 2, 3)  # spconv (Cout, kz, ky, kx, Cin) -> torch (Cout, Cin, kz, ky, kx)
+    if conv.subm:
+        out = F.conv3d(x, weight, padding=[k // 2 for k in conv.kernel_size])
+    else:
+        out = F.conv3d(x, weight, stride=conv.stride, padding=conv.padding)
+        ones = torch.ones(1, 1, *conv.kernel_size)
+        mask = F.conv3d(mask, ones, stride=conv.stride, padding=conv.padding) > 0
+        mask = mask.to(x.dtype)
+    scale = norm.weight / torch.sqrt(norm.running_var + norm.eps)
+    out = (out - norm.running_mean.view(1, -1, 1, 1, 1)) * scale.view(1, -1, 1, 1, 1) + norm.bias.view(1, -1, 1, 1, 1)
+    return torch.relu(out) * mask, mask
+
+
+def _dense_backbone(backbone, features, coords, shape):
+    x = torch.zeros(1, features.shape[1], *shape)
+    x[0, :, coords[:, 1], coords[:, 2], coords[:, 3]] = features.t()
+    mask = torch.zeros(1, 1, *shape)
+    mask[0, 0, coords[:, 1], coords[:, 2], coords[:, 3]] = 1.0
+    x, mask = _dense_block(x, mask, backbone.conv_input)
+    for stage in (backbone.conv1, backbone.conv2, backbone.conv3, backbone.conv4):
+        for block in stage:
+            x, mask = _dense_block(x, mask, block)
+    x, _ = _dense_block(x, mask, backbone.conv_out)
+    return x
+
+
+@pytest.fixture
+def two_threads():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(threads)
+
+
+def test_sparse_backbone_equals_dense_conv3d_at_two_threads(two_threads):
+    generator = torch.Generator().manual_seed(0)
+    backbone = VoxelBackBone8x(second_model_cfg().BACKBONE_3D, input_channels=4, grid_size=GRID)
+    with torch.no_grad():
+        for module in backbone.modules():
+            if isinstance(module, torch.nn.BatchNorm1d):
+                module.running_mean.uniform_(-0.2, 0.2, generator=generator)
+                module.running_var.uniform_(0.5, 2.0, generator=generator)
+                module.weight.uniform_(0.5, 1.5, generator=generator)
+                module.bias.uniform_(-0.1, 0.1, generator=generator)
+    backbone.eval()
+    shape = backbone.sparse_shape  # (z + 1, y, x)
+    cells = torch.stack([torch.randint(0, s, (3000,), generator=generator) for s in shape], dim=1)
+    cells = torch.unique(cells, dim=0)
+    coords = torch.cat([torch.zeros(len(cells), 1, dtype=torch.long), cells], dim=1)
+    features = torch.randn(len(coords), 4, generator=generator, requires_grad=True)
+    batch = {"voxel_features": features, "voxel_coords": coords.int(), "batch_size": 1}
+    sparse_out = backbone(batch)["encoded_spconv_tensor"].dense()
+
+    dense_features = features.detach().clone().requires_grad_()
+    dense_out = _dense_backbone(backbone, dense_features, coords, shape)
+    assert sparse_out.shape == dense_out.shape == (1, 128, 2, 6, 8)
+    scale = dense_out.abs().max().item()
+    assert scale > 0.1
+    assert (sparse_out - dense_out).abs().max().item() <= 1e-4 * scale
+
+    upstream = torch.randn(dense_out.shape, generator=generator)
+    (sparse_out * upstream).sum().backward()  # backward runs at 2 threads too (patched to one inside spconv)
+    (dense_out * upstream).sum().backward()
+    grad_scale = dense_features.grad.abs().max().item()
+    assert (features.grad - dense_features.grad).abs().max().item() <= 1e-4 * grad_scale
+    assert torch.get_num_threads() == 2
+
+
+def test_patch_is_idempotent_and_single_thread_restores():
+    import spconv.pytorch.functional as functional
+    import spconv.pytorch.ops as ops
+
+    backward = functional.SubMConvFunction.backward
+    patch_spconv()
+    patch_spconv()
+    assert functional.SubMConvFunction.backward is backward  # wrapped once only
+    if not torch.cuda.is_available():
+        assert ops.get_current_stream() == 0
+    threads = torch.get_num_threads()
+    with single_thread():
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == threads
