@@ -1,5 +1,4 @@
 """Test-wide settings: torch uses the cores the machine has (CI: 2), so thread bugs show up as they would for users."""
-import os
 from pathlib import Path
 
 import pytest

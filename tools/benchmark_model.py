@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.models import build_network, load_data_to_device

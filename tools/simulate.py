@@ -1,10 +1,7 @@
 """Generate a simulated domain; same as `memslidar simulate` (see --help)."""
-import argparse
 import sys
 
-from pcdet_memslidar.sim import cli
+from pcdet_memslidar.cli import main
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=cli.__doc__)
-    cli.add_arguments(parser)
-    sys.exit(cli.run(parser.parse_args()))
+    sys.exit(main(["simulate", *sys.argv[1:]]))

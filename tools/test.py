@@ -1,7 +1,7 @@
-"""Evaluate checkpoints: OpenPCDet's tools/test.py flags (see `python tools/test.py --help`); same as `memslidar test`."""
+"""Evaluate checkpoints with OpenPCDet's tools/test.py flags (see --help); same as `memslidar test`."""
 import sys
 
-from pcdet_memslidar.runtime.test import main
+from pcdet_memslidar.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["test", *sys.argv[1:]]))

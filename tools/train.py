@@ -1,7 +1,7 @@
-"""Train a detector: OpenPCDet's tools/train.py flags (see `python tools/train.py --help`); same as `memslidar train`."""
+"""Train a detector with OpenPCDet's tools/train.py flags (see --help); same as `memslidar train`."""
 import sys
 
-from pcdet_memslidar.runtime.train import main
+from pcdet_memslidar.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["train", *sys.argv[1:]]))

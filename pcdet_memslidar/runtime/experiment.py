@@ -11,6 +11,7 @@ from pathlib import Path
 import torch
 
 from pcdet_memslidar.config import load_config
+from pcdet_memslidar.datasets.grid import check_config_grid
 from pcdet_memslidar.runtime.common import get_device, set_torch_threads
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size
 
@@ -57,6 +58,7 @@ def setup_experiment(args: argparse.Namespace) -> Experiment:
     if args.launcher == "slurm":
         raise SystemExit("--launcher slurm is not supported: start the processes with torchrun and --launcher pytorch")
     cfg = load_config(args.cfg_file, args.set_cfgs)
+    check_config_grid(cfg)  # a grid that does not fit SECOND is rejected before any data is read
     dist = args.launcher == "pytorch"
     world_size, rank = init_dist_pytorch(args.tcp_port, args.local_rank) if dist else (1, 0)
     cfg.LOCAL_RANK = int(os.environ.get("LOCAL_RANK", 0)) if dist else 0

@@ -8,7 +8,6 @@ from __future__ import annotations
 from collections import defaultdict
 
 import numpy as np
-import torch
 from torch.utils.data import Dataset
 
 from pcdet_memslidar.datasets.processor.data_processor import VoxelGenerator

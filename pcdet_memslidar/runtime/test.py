@@ -87,9 +87,3 @@ def run(args: argparse.Namespace) -> int:
     if tb_log is not None:
         tb_log.close()
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Evaluate SECOND checkpoints (OpenPCDet's tools/test.py flags)")
-    add_arguments(parser)
-    return run(parser.parse_args(argv))

@@ -129,9 +129,3 @@ def run(args: argparse.Namespace) -> int:
             writer.close()
     logger.info("**********************End evaluation**********************")
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Train a SECOND person detector (OpenPCDet's tools/train.py flags)")
-    add_arguments(parser)
-    return run(parser.parse_args(argv))

@@ -26,7 +26,9 @@ def experiment(tmp_path, monkeypatch):
     monkeypatch.setattr(test_tool, "build_dataloader", _synthetic_dataloader)
     cfg_dir = tmp_path / "cfgs" / "people"
     cfg_dir.mkdir(parents=True)
-    config = {"CLASS_NAMES": ["Pedestrian"], "DATA_CONFIG": {"DATA_SPLIT": {"train": "train", "test": "val"}},
+    config = {"CLASS_NAMES": ["Pedestrian"], "DATA_CONFIG": {
+                  "DATA_SPLIT": {"train": "train", "test": "val"}, "POINT_CLOUD_RANGE": list(SMALL_RANGE),
+                  "DATA_PROCESSOR": [{"NAME": "transform_points_to_voxels", "VOXEL_SIZE": list(PERSON_VOXEL)}]},
               "MODEL": small_model_cfg(),
               "OPTIMIZATION": {"BATCH_SIZE_PER_GPU": 2, "NUM_EPOCHS": 2, "OPTIMIZER": "adam_onecycle", "LR": 0.003,
                                "WEIGHT_DECAY": 0.01, "MOMS": [0.95, 0.85], "PCT_START": 0.4, "DIV_FACTOR": 10,
