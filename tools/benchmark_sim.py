@@ -2,11 +2,12 @@
 
     python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2]
 
-Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after one
-warm-up frame per viewpoint: frames/s of whole frames (people, casting, sensor, labels, writing the KITTI files),
-rays/s, and the ratio of the whole-frame time to the pure ray-casting time of the same rays (all rays of the
-frame cast once against one prebuilt Open3D scene holding the static world and every person posed at
-mid-frame); then the wall time of `simulate_dataset` with --workers processes, start-up included.
+Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after
+building every viewpoint's caster and one warm-up frame: frames/s of whole frames (people, casting, sensor,
+labels, writing the KITTI files), rays/s, and the ratio of the whole-frame time to the pure ray-casting time of
+the same rays (all rays of the frame cast once against one prebuilt Open3D scene holding the static world and
+every person posed at mid-frame); then the wall time of `simulate_dataset` with --workers processes, start-up
+included; then the ms per frame of each stage. Runs with glibc keeping freed memory, as simulate_dataset does.
 Part 2: for the frames of the paper target, every body detail level x time handling against the finest setting
 ('full' mesh, each pulse at its own time): displacement of the pulses that hit a person in both, share of
 person pulses that hit a person in only one, and time per frame.
@@ -23,9 +24,9 @@ import numpy as np
 
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.sim.bodies import LODS, load_body_bank
-from pcdet_memslidar.sim.caster import body_scene
 from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.frame import frame_rng, get_caster, simulate_frame
+from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import sample_people
 from pcdet_memslidar.sim.scenes import get_scene
@@ -38,7 +39,7 @@ TIME_HANDLING = {"per pulse": 0.0, "10 ms slices": 0.01, "50 ms slices": 0.05, "
 def posed_world_triangles(bank, lod, person, time_s) -> np.ndarray:
     """(T, 3, 3) triangles of `person` posed at `time_s`, in the ground frame."""
     xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
-    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[0]
+    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[:, 0].T.reshape(-1, 3, 4)
     mesh = bank.meshes[lod]
     rest = mesh.rest_vertices[person.shape][mesh.triangles]  # (T, 3, 3)
     t = transforms[mesh.triangle_part]  # (T, 3, 4)
@@ -78,7 +79,11 @@ def frame_people(preset, seed, index, bank):
     return viewpoint, people
 
 
+STAGES = ("people", "casting", "cast_rays", "sensor", "labels", "writing")
+
+
 def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
+    """Frames/s, rays/s, whole/pure ratio and ms per frame of each stage of `frames` frames of `preset`."""
     bank = load_body_bank()
     for viewpoint in preset.viewpoints:  # warm-up: static worlds built and cast once
         get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
@@ -87,11 +92,16 @@ def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as folder:
         layout = KittiLayout(folder)
         whole, pure, rays, people_count = 0.0, 0.0, 0, 0
+        stages = dict.fromkeys(STAGES, 0.0)
         for index in range(frames):
             start = time.perf_counter()
             frame = simulate_frame(preset, seed, index)
+            written = time.perf_counter()
             write_simulated_frame(layout, index, frame, fingerprint)
             whole += time.perf_counter() - start
+            stages["writing"] += time.perf_counter() - written
+            for stage, seconds in frame.seconds.items():
+                stages[stage] += seconds
             viewpoint, people = frame_people(preset, seed, index, bank)
             caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
             pure += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod)
@@ -100,8 +110,9 @@ def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
         start = time.perf_counter()
         simulate_dataset(preset, frames, Path(folder) / "parallel", seed=seed, workers=workers, progress=False)
         parallel = time.perf_counter() - start
-    return dict(fps=frames / whole, rays_per_s=rays / whole, ratio=whole / pure, people=people_count / frames,
-                rays=rays / frames, parallel_fps=frames / parallel)
+    return dict(fps=frames / whole, rays_per_s=rays / whole, ratio=whole / pure,
+                people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / parallel,
+                whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames, **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
 
 
 def errors(preset, frames: int, seed: int = 0) -> list[tuple]:
@@ -115,7 +126,9 @@ def errors(preset, frames: int, seed: int = 0) -> list[tuple]:
         step = TIME_HANDLING[handling]
         step = pattern.frame_period_s if step is None else step
         displacement, mismatch, person_pulses, seconds = [], 0, 0, 0.0
-        body_scene(bank, lod)  # built once per process, not timed
+        # warm-up, not timed: builds the body scene of this detail level and its BVH (on the first cast)
+        viewpoint, people = frame_people(preset, seed, 0, bank)
+        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, lod).cast_frame(people)
         for index in range(frames):
             viewpoint, people = frame_people(preset, seed, index, bank)
             caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, lod)
@@ -146,13 +159,20 @@ def main() -> None:
     parser.add_argument("--error-frames", type=int, default=6, help="frames for the speed-vs-error table")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
+    keep_freed_memory()  # as simulate_dataset does
     target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))
     print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure cast':>16s} "
           f"{'frames/s x' + str(args.workers) + ' workers':>22s}")
+    results = {}
     for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
-        r = speed(preset, args.frames, args.workers)
-        print(f"{preset.name:34s} {r['people']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} {r['rays_per_s'] / 1e6:8.2f} "
-              f"{r['ratio']:16.2f} {r['parallel_fps']:22.1f}")
+        r = results[preset.name] = speed(preset, args.frames, args.workers)
+        print(f"{preset.name:34s} {r['people_per_frame']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} "
+              f"{r['rays_per_s'] / 1e6:8.2f} {r['ratio']:16.2f} {r['parallel_fps']:22.1f}")
+    print(f"\nms per frame ('casting' includes 'cast_rays', the time inside Open3D; 'pure cast': all rays of the "
+          f"frame against one prebuilt scene)\n{'domain':34s} " + " ".join(f"{s:>9s}" for s in STAGES)
+          + f" {'whole':>9s} {'pure cast':>9s}")
+    for name, r in results.items():
+        print(f"{name:34s} " + " ".join(f"{r[s]:9.1f}" for s in STAGES) + f" {r['whole_ms']:9.1f} {r['pure_ms']:9.1f}")
     print(f"\nspeed vs error ({args.error_frames} frames of the paper target; reference: 'full' mesh, per pulse; "
           f"displacement of person hits in cm)")
     print(f"{'mesh':8s} {'time handling':14s} {'median':>7s} {'p90':>7s} {'person pulses changed %':>24s} "

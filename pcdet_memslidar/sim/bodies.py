@@ -37,6 +37,11 @@ class BodyMesh:
         pairs = np.unique(np.stack([self.triangles.ravel(), np.repeat(self.triangle_part, 3)], 1), axis=0)
         return pairs[:, 0], pairs[:, 1]
 
+    @functools.cached_property
+    def rest_part_vertices(self) -> np.ndarray:
+        """(3, S, U) rest positions of the part_vertices of each shape, component-major."""
+        return np.ascontiguousarray(self.rest_vertices[:, self.part_vertices[0]].transpose(2, 0, 1))
+
 
 @dataclass(frozen=True, eq=False)  # hashed by identity: body scenes are cached per bank
 class BodyBank:
@@ -63,38 +68,54 @@ class BodyBank:
         """(n,) length [m] of one gait cycle (two steps) of body `shape`: 0.83 x stature (1.44 m at 1.74 m)."""
         return 0.83 * self.shape_stature_m[shape]
 
+    @functools.cached_property
+    def transform_rows(self) -> np.ndarray:
+        """(12, S * (GAIT_PHASES + 1) * parts) all transforms as flattened 3x4 matrices [R | t] (row-major),
+        component-major."""
+        return np.ascontiguousarray(self.transforms.reshape(-1, 12).T)
+
+    def gait_pose(self, phase: np.ndarray, phase_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Bank gait pose lower (n,) of gait phases (n,) [cycles] (any real, taken mod 1) and the blend (n,) in
+        [0, 1) from it towards pose (lower + 1) % GAIT_PHASES; phase_steps: quantise the phase to that many steps
+        per cycle first."""
+        cycle = np.mod(np.asarray(phase, dtype=np.float64), 1.0) * self.gait_phases
+        if phase_steps is not None:
+            step = self.gait_phases / phase_steps
+            cycle = np.mod(np.round(cycle / step) * step, self.gait_phases)
+        return np.floor(cycle).astype(np.int64) % self.gait_phases, cycle - np.floor(cycle)
+
     def part_transforms(self, shape: np.ndarray, phase: np.ndarray, walk_weight: np.ndarray,
                         phase_steps: int | None = None, part: np.ndarray | None = None) -> np.ndarray:
-        """Part transforms of n bodies: (n, parts, 3, 4), or (n, 3, 4) for one given part per body.
+        """Part transforms of n bodies as flattened 3x4 matrices [R | t] (row-major), component-major so that
+        numpy loops run over the bodies: (12, n, parts), or (12, n) for one given part per body.
 
         shape (n,) int; phase (n,) gait phase in cycles (any real, taken mod 1); walk_weight (n,) in [0, 1]:
         1 = walking, 0 = standing. phase_steps: quantise the phase to that many steps per cycle (nearest bank
         entry) instead of blending neighbouring phases. part (n,) int: only that part of each body.
         """
         shape = np.asarray(shape, dtype=np.int64)
-        cycle = np.mod(np.asarray(phase, dtype=np.float64), 1.0) * self.gait_phases
-        if phase_steps is not None:
-            step = self.gait_phases / phase_steps
-            cycle = np.mod(np.round(cycle / step) * step, self.gait_phases)
-        lower = np.floor(cycle).astype(np.int64) % self.gait_phases
-        upper = (lower + 1) % self.gait_phases
-        blend = cycle - np.floor(cycle)
+        lower, blend = self.gait_pose(phase, phase_steps)
         weight = np.clip(np.asarray(walk_weight, dtype=np.float64), 0.0, 1.0)
-        stand = np.full_like(lower, self.gait_phases)
-        index = (shape, lower), (shape, upper), (shape, stand)
-        if part is not None:
-            index = tuple(i + (np.asarray(part, dtype=np.int64),) for i in index)
-        per_body = (slice(None),) + (None,) * (3 if part is None else 2)  # broadcast over (parts,) 3, 4
-        blend, weight = blend[per_body], weight[per_body]
-        return weight * ((1.0 - blend) * self.transforms[index[0]] + blend * self.transforms[index[1]]) + (
-            1.0 - weight) * self.transforms[index[2]]
+        parts = len(self.part_names)
+        if part is None:  # every part of each body: broadcast the per-body values over (n, parts)
+            part = np.arange(parts)
+            shape, lower, blend, weight = shape[:, None], lower[:, None], blend[:, None], weight[:, None]
+        first = (shape * (self.gait_phases + 1)) * parts + part  # column of pose 0 of the body's part
 
-    def posed_vertices(self, lod: str, shape: int, transforms: np.ndarray) -> np.ndarray:
-        """(U, 3) vertices of body `shape` posed by (parts, 3, 4) `transforms`, in the body frame."""
+        def pose(index: np.ndarray) -> np.ndarray:
+            return np.take(self.transform_rows, first + index * parts, axis=1)
+
+        walking = (1.0 - blend) * pose(lower) + blend * pose((lower + 1) % self.gait_phases)
+        return weight * walking + (1.0 - weight) * pose(np.full_like(lower, self.gait_phases))
+
+    def posed_vertices(self, lod: str, shape: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+        """(3, n, U) vertices (component-major) of bodies `shape` (n,) posed by their part transforms
+        (12, n, parts) (as `part_transforms` returns them), in the body frame."""
         mesh = self.meshes[lod]
-        vertex, part = mesh.part_vertices
-        rest = mesh.rest_vertices[shape, vertex]
-        return np.einsum("nij,nj->ni", transforms[part, :, :3], rest) + transforms[part, :, 3]
+        rest = mesh.rest_part_vertices.take(shape, axis=1)  # (3, n, U)
+        t = transforms.take(mesh.part_vertices[1], axis=2)  # (12, n, U)
+        return np.stack([t[4 * i] * rest[0] + t[4 * i + 1] * rest[1] + t[4 * i + 2] * rest[2] + t[4 * i + 3]
+                         for i in range(3)])
 
 
 @functools.lru_cache(maxsize=None)

@@ -4,15 +4,18 @@ How a frame is cast:
 1. The static world is one RaycastingScene built once per viewpoint; all rays of the pattern are cast against it
    once and the hits are reused by every frame of that viewpoint (the world does not move).
 2. People are not re-meshed per frame. Every body part of every bank shape sits, in its rest pose, in one shared
-   RaycastingScene (the "body scene", each part at its own far-apart offset). A person only receives the rays
-   inside its angular bounds (azimuth window, then a bounding-sphere test around its path during the frame).
-   Each such ray is moved into the rest frame of each body part with the part's pose at the ray's own pulse time
-   (trajectory + gait), which makes motion within the frame exact per pulse (time slicing with time_step_s > 0
-   quantises pulse times instead, for comparison), and is cast against that part only.
+   RaycastingScene (the "body scene", each part at its own far-apart offset). The rays that can reach a person
+   come from an angular index of the rays (azimuth bins, elevation sorted within each): those in the angular
+   range of a cylinder around the person's path during the frame. Each is moved into the person's body frame at
+   the ray's own pulse time (trajectory), culled with boxes bounding the body and its parts over all poses, moved
+   into the rest frame of each remaining part with the part's pose at that time (gait), which makes motion within
+   the frame exact per pulse (time slicing with time_step_s > 0 quantises pulse times instead, for comparison),
+   culled with the part's rest box, and cast against that part only. All people and parts go through these steps
+   together, as arrays of (ray, person) and (ray, part) pairs, and through one cast_rays call.
 3. Per ray the nearest hit wins (static or any person).
 With a beam divergence > 0, every pulse also casts 4 sub-rays at the edge of its footprint (two opposite pairs);
 where a pair straddles a depth edge, its sub-ray farthest in range from the centre gives the second surface
-(`edge_range`) for mixed pixels.
+(`edge_range`) for mixed pixels (recomputed per frame only for the pulses whose rays hit a person).
 """
 from __future__ import annotations
 
@@ -24,6 +27,7 @@ import numpy as np
 
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.sim.bodies import BodyBank
+from pcdet_memslidar.sim.motion import TrajectoryStack
 from pcdet_memslidar.sim.people import Person
 from pcdet_memslidar.sim.scenes import Scene
 from pcdet_memslidar.utils.open3d import import_open3d
@@ -33,6 +37,8 @@ BODY_REACH_M = 0.75  # horizontal reach of a body around its trajectory point (s
 BODY_HEIGHT_M = 2.0  # height of the bounding volume of a body
 PART_SPACING_M = 300.0  # distance between body parts in the body scene: more than twice any cast range
 MAX_BODY_RANGE_M = 120.0  # hits on a body part farther than this are foreign parts of the body scene
+AZIMUTH_BINS = 720  # bins of the angular ray index (0.5 deg)
+AZIMUTH_BIN_RAD = 2 * np.pi / AZIMUTH_BINS
 EDGE_ASYMMETRY_M = 0.05  # opposite sub-rays whose range deviations cancel to within this see one smooth surface
 
 
@@ -63,34 +69,43 @@ def _subray_directions(directions: np.ndarray, divergence_rad: float) -> np.ndar
     return subrays / np.linalg.norm(subrays, axis=2, keepdims=True)
 
 
-def _cast(scene, origins: np.ndarray, directions: np.ndarray, threads: int):
-    """Cast rays (n, 3) + (n, 3) against an Open3D RaycastingScene; returns numpy t_hit, geometry ids, primitive
-    ids, normals."""
+def _cast(scene, rays: np.ndarray, threads: int):
+    """Cast rays (n, 6) [origin, direction] against an Open3D RaycastingScene; returns numpy t_hit (n,) float32,
+    geometry ids (n,), primitive ids (n,), normals (n, 3) float32."""
     o3d = import_open3d()
-    rays = o3d.core.Tensor(np.concatenate([origins, directions], axis=1).astype(np.float32))
-    result = scene.cast_rays(rays, nthreads=threads)
-    return (result["t_hit"].numpy().astype(np.float64), result["geometry_ids"].numpy().astype(np.int64),
-            result["primitive_ids"].numpy().astype(np.int64), result["primitive_normals"].numpy().astype(np.float64))
+    result = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, dtype=np.float32)), nthreads=threads)
+    return (result["t_hit"].numpy(), result["geometry_ids"].numpy().astype(np.int64),
+            result["primitive_ids"].numpy().astype(np.int64), result["primitive_normals"].numpy())
 
 
 @dataclass(frozen=True)
 class BodyScene:
-    """All (shape, part) rest meshes of one detail level in one RaycastingScene.
+    """All (shape, part) rest meshes of one detail level in one RaycastingScene, and boxes that cull rays.
 
-    geometry id g = shape * parts + part sits at offset[g]; centre (G, 3), radius (G,) bound it in the rest frame;
-    pose_centre (S, parts, 3), pose_radius (S, parts) bound the part in the body frame over all bank poses (and so
-    over all their blends), body_centre (S, 3), body_radius (S,) the whole body; the material index of triangle k of geometry g is material[material_start[g] + k]."""
+    Geometry id g = shape * parts + part sits at offset[:, g] in the scene; the material index of its triangle k
+    is material[material_start[g] + k]. Axis-aligned boxes are (2, 3, ...) arrays of corners [low, high],
+    component-major so that numpy loops run over the rays:
+    rest_box (2, 3, G): geometry g in its rest frame; pose_box (2, 3, G): in the body frame over all bank poses;
+    walk_box (2, 3, S * GAIT_PHASES * parts) at (shape * GAIT_PHASES + l) * parts + part: over the gait poses l
+    and (l + 1) % GAIT_PHASES; stand_box (2, 3, G): in the standing pose; body_walk_box (2, 3, S * GAIT_PHASES)
+    and body_stand_box (2, 3, S): the whole body likewise. A blend of bank poses stays in the convex hull of the
+    blended poses, so in the union of their boxes."""
 
     scene: object
     offset: np.ndarray
-    centre: np.ndarray
-    radius: np.ndarray
     material: np.ndarray
     material_start: np.ndarray
-    pose_centre: np.ndarray
-    pose_radius: np.ndarray
-    body_centre: np.ndarray
-    body_radius: np.ndarray
+    rest_box: np.ndarray
+    pose_box: np.ndarray
+    walk_box: np.ndarray
+    stand_box: np.ndarray
+    body_walk_box: np.ndarray
+    body_stand_box: np.ndarray
+
+
+def _boxes(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """(2, 3, n) boxes from corners low, high (..., 3), flattened over the leading axes."""
+    return np.stack([low.reshape(-1, 3).T, high.reshape(-1, 3).T])
 
 
 @functools.lru_cache(maxsize=None)
@@ -98,44 +113,39 @@ def body_scene(bank: BodyBank, lod: str) -> BodyScene:
     """The body scene of `bank` at detail level `lod`, built once per process."""
     o3d = import_open3d()
     mesh = bank.meshes[lod]
-    parts = len(bank.part_names)
+    shapes, parts, gait = bank.num_shapes, len(bank.part_names), bank.gait_phases
     scene = o3d.t.geometry.RaycastingScene()
-    side = int(np.ceil((bank.num_shapes * parts) ** (1 / 3)))
-    offsets, centres, radii, materials = [], [], [], []
-    for shape in range(bank.num_shapes):
+    side = int(np.ceil((shapes * parts) ** (1 / 3)))
+    offset = np.zeros((3, shapes * parts))
+    rest_low, rest_high = np.zeros((shapes, parts, 3)), np.zeros((shapes, parts, 3))
+    posed_low, posed_high = np.zeros((shapes, gait + 1, parts, 3)), np.zeros((shapes, gait + 1, parts, 3))
+    vertex, vertex_part = mesh.part_vertices
+    materials = []
+    for shape in range(shapes):
         for part in range(parts):
             g = shape * parts + part
-            offset = PART_SPACING_M * np.array([g % side, (g // side) % side, g // side ** 2], dtype=np.float64)
+            offset[:, g] = PART_SPACING_M * np.array([g % side, (g // side) % side, g // side ** 2])
             triangles = mesh.triangles[mesh.triangle_part == part]
             used, local = np.unique(triangles, return_inverse=True)
             vertices = mesh.rest_vertices[shape, used].astype(np.float64)
-            geometry = scene.add_triangles(o3d.core.Tensor((vertices + offset).astype(np.float32)),
+            geometry = scene.add_triangles(o3d.core.Tensor((vertices + offset[:, g]).astype(np.float32)),
                                            o3d.core.Tensor(local.reshape(-1, 3).astype(np.uint32)))
             assert geometry == g, "Open3D numbers geometries in the order they are added"
-            centre = 0.5 * (vertices.min(0) + vertices.max(0))
-            offsets.append(offset)
-            centres.append(centre)
-            radii.append(np.linalg.norm(vertices - centre, axis=1).max())
             materials.append(mesh.triangle_material[mesh.triangle_part == part])
-    material_start = np.cumsum([0] + [len(m) for m in materials[:-1]])
-    vertex, vertex_part = mesh.part_vertices
-    pose_centre = np.zeros((bank.num_shapes, parts, 3))
-    pose_radius = np.zeros((bank.num_shapes, parts))
-    body_centre = np.zeros((bank.num_shapes, 3))
-    body_radius = np.zeros(bank.num_shapes)
-    for shape in range(bank.num_shapes):
-        posed_parts = []
-        for part in range(parts):
+            rest_low[shape, part], rest_high[shape, part] = vertices.min(0), vertices.max(0)
             rest = mesh.rest_vertices[shape, vertex[vertex_part == part]].astype(np.float64)
-            posed = np.concatenate([rest @ t[:, :3].T + t[:, 3] for t in bank.transforms[shape, :, part]])
-            pose_centre[shape, part] = 0.5 * (posed.min(0) + posed.max(0))
-            pose_radius[shape, part] = np.linalg.norm(posed - pose_centre[shape, part], axis=1).max()
-            posed_parts.append(posed)
-        posed = np.concatenate(posed_parts)
-        body_centre[shape] = 0.5 * (posed.min(0) + posed.max(0))
-        body_radius[shape] = np.linalg.norm(posed - body_centre[shape], axis=1).max()
-    return BodyScene(scene, np.array(offsets), np.array(centres), np.array(radii), np.concatenate(materials),
-                     material_start, pose_centre, pose_radius, body_centre, body_radius)
+            transform = bank.transforms[shape, :, part]  # (poses, 3, 4)
+            posed = np.einsum("pij,vj->pvi", transform[:, :, :3], rest) + transform[:, None, :, 3]
+            posed_low[shape, :, part], posed_high[shape, :, part] = posed.min(1), posed.max(1)
+    material_start = np.cumsum([0] + [len(m) for m in materials[:-1]])
+    walk_low = np.minimum(posed_low[:, :gait], np.roll(posed_low[:, :gait], -1, axis=1))  # (S, gait, parts, 3)
+    walk_high = np.maximum(posed_high[:, :gait], np.roll(posed_high[:, :gait], -1, axis=1))
+    stand_low, stand_high = posed_low[:, gait], posed_high[:, gait]
+    return BodyScene(scene, offset, np.concatenate(materials), material_start,
+                     rest_box=_boxes(rest_low, rest_high), pose_box=_boxes(posed_low.min(1), posed_high.max(1)),
+                     walk_box=_boxes(walk_low, walk_high), stand_box=_boxes(stand_low, stand_high),
+                     body_walk_box=_boxes(walk_low.min(2), walk_high.max(2)),
+                     body_stand_box=_boxes(stand_low.min(1), stand_high.max(1)))
 
 
 class Caster:
@@ -157,46 +167,56 @@ class Caster:
         if beam_divergence_rad > 0:
             rays.extend(_subray_directions(self.pulse_directions, beam_divergence_rad))
         self.directions = np.concatenate(rays)  # (R, 3), R = P or P * (1 + SUBRAYS); pulse of ray r = r % P
+        self.direction_rows = np.ascontiguousarray(self.directions.T)  # (3, R)
         self.time_offset = np.tile(np.asarray(time_offset, dtype=np.float64), len(rays))
         self.has_subrays = len(rays) > 1
 
         vertices, triangles, self.static_reflectivity = scene.triangles()
         self.static_scene = o3d.t.geometry.RaycastingScene()
         self.static_scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
-        t_hit, _, primitive, normal = _cast(self.static_scene, np.broadcast_to(self.origin, self.directions.shape),
-                                            self.directions, threads)
+        t_hit, _, primitive, normal = _cast(
+            self.static_scene, np.column_stack([np.broadcast_to(self.origin, self.directions.shape), self.directions]),
+            threads)
         hit = np.isfinite(t_hit)
-        self.static_range = np.where(hit, t_hit, np.inf)
-        self.static_cos = np.where(hit, np.abs(np.einsum("ij,ij->i", normal, self.directions)), 0.0)
+        self.static_range = np.where(hit, t_hit.astype(np.float64), np.inf)  # (R,)
+        hit, normal, primitive = hit[:self.pulses], normal[:self.pulses], primitive[:self.pulses]
+        self.static_cos = np.where(hit, np.abs(np.einsum("ij,ij->i", normal, self.pulse_directions)), 0.0)  # (P,)
         self.static_ray_reflectivity = np.where(hit, self.static_reflectivity[np.where(hit, primitive, 0)], 0.0)
+        self.static_edge_range = (self._edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
+                                  else None)
+        # angular index: rays sorted by azimuth bin, then elevation; key = bin + 0.5 + elevation / 4
         azimuth = np.arctan2(self.directions[:, 1], self.directions[:, 0])
-        self.azimuth_order = np.argsort(azimuth, kind="stable")
-        self.azimuth_sorted = azimuth[self.azimuth_order]
+        azimuth_bin = np.minimum(np.floor((azimuth + np.pi) / AZIMUTH_BIN_RAD), AZIMUTH_BINS - 1)
+        key = azimuth_bin + 0.5 + np.arcsin(np.clip(self.directions[:, 2], -1.0, 1.0)) / 4
+        self.angular_order = np.argsort(key, kind="stable")
+        self.angular_key = key[self.angular_order]
 
-    def candidate_rays(self, person: Person) -> np.ndarray:
-        """Sorted indices of the rays that can reach `person` during the frame (its angular bounds)."""
-        times = person.trajectory.times
-        during = (times >= 0.0) & (times <= self.frame_period_s)
-        path = person.trajectory.xy[during]
-        centre_xy = 0.5 * (path.min(0) + path.max(0))
-        reach = np.linalg.norm(path - centre_xy, axis=1).max() + BODY_REACH_M
-        centre = np.array([centre_xy[0], centre_xy[1], BODY_HEIGHT_M / 2])
-        radius = np.hypot(reach, BODY_HEIGHT_M / 2)
-        offset = centre - self.origin
-        distance_xy = np.hypot(offset[0], offset[1])
-        if distance_xy > radius:
-            half_width = np.arcsin(radius / distance_xy)
-            middle = np.arctan2(offset[1], offset[0])
-            windows = [(middle - half_width, middle + half_width)]
-            windows += [(lo + shift, hi + shift) for lo, hi in windows for shift in (-2 * np.pi, 2 * np.pi)]
-            rays = np.concatenate([self.azimuth_order[np.searchsorted(self.azimuth_sorted, lo):
-                                                      np.searchsorted(self.azimuth_sorted, hi)]
-                                   for lo, hi in windows])
-        else:
-            rays = np.arange(len(self.directions))
-        along = self.directions[rays] @ offset
-        miss = np.sum(offset ** 2) - along ** 2
-        return np.sort(rays[(along > 0) & (miss < radius ** 2)])
+    def candidate_pairs(self, people: TrajectoryStack) -> tuple[np.ndarray, np.ndarray]:
+        """Ray (n,) and person (n,) indices of the rays that can reach each person during the frame: those in the
+        azimuth and elevation range of a vertical cylinder around the person's path."""
+        during = (people.times >= 0.0) & (people.times <= self.frame_period_s)
+        x, y = people.samples[0][:, during], people.samples[1][:, during]  # (k, F) path during the frame
+        centre_x, centre_y = 0.5 * (x.min(1) + x.max(1)), 0.5 * (y.min(1) + y.max(1))
+        reach = np.hypot(x - centre_x[:, None], y - centre_y[:, None]).max(1) + BODY_REACH_M
+        distance = np.hypot(centre_x - self.origin[0], centre_y - self.origin[1])
+        outside = distance > reach  # else the sensor is above the cylinder: all azimuths, all elevations
+        # elevation range: extremes of atan2(z - height, horizontal distance) at the cylinder's corners
+        closest = np.where(outside, distance - reach, 1e-9)
+        corners = np.arctan2(np.array([0.0, BODY_HEIGHT_M])[:, None, None] - self.origin[2],
+                             np.stack([closest, distance + reach]))  # (z, distance, k)
+        low = np.where(outside, corners.min((0, 1)), -np.pi / 2)
+        high = np.where(outside, corners.max((0, 1)), np.pi / 2)
+        half_width = np.where(outside, np.arcsin(reach / np.maximum(distance, reach)), np.pi)
+        middle = np.arctan2(centre_y - self.origin[1], centre_x - self.origin[0])
+        first_bin = np.floor((middle - half_width + np.pi) / AZIMUTH_BIN_RAD).astype(np.int64)
+        last_bin = np.floor((middle + half_width + np.pi) / AZIMUTH_BIN_RAD).astype(np.int64)
+        bins = np.minimum(last_bin - first_bin + 1, AZIMUTH_BINS)
+        # one run of the angular index per (person, azimuth bin)
+        person = np.repeat(np.arange(len(x)), bins)
+        azimuth_bin = _runs(first_bin, bins) % AZIMUTH_BINS
+        start = np.searchsorted(self.angular_key, azimuth_bin + 0.5 + low[person] / 4)
+        count = np.searchsorted(self.angular_key, azimuth_bin + 0.5 + high[person] / 4, side="right") - start
+        return self.angular_order[_runs(start, count)], np.repeat(person, count)
 
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
                    phase_steps: int | None = None) -> FrameHits:
@@ -205,113 +225,151 @@ class Caster:
         time_step_s: 0 = each pulse sees the people at its own time; > 0 = pulse times rounded to the middle of
         slices of that length (frame_period_s: one instant for the whole frame). phase_steps: gait phases a body
         can take (None = continuous)."""
-        best_range = self.static_range.copy()
-        best_cos = self.static_cos.copy()
-        best_reflectivity = self.static_ray_reflectivity.copy()
-        best_person = np.full(len(self.directions), -1)
+        p = self.pulses
+        ray_range, cos = self.static_range.copy(), self.static_cos.copy()
+        reflectivity, person = self.static_ray_reflectivity.copy(), np.full(p, -1)
+        edge_range = self.static_edge_range.copy() if self.has_subrays else None
         unoccluded = np.zeros(len(people), dtype=np.int64)
         cast_seconds = 0.0
-        hits = []
-        for index, person in enumerate(people):
-            rays = self.candidate_rays(person)
-            if len(rays):
-                ray, t_hit, cos, reflectivity, seconds = self._cast_person(person, rays, time_step_s, phase_steps)
-                cast_seconds += seconds
-                unoccluded[index] = np.count_nonzero(ray < self.pulses)
-                hits.append((ray, t_hit, cos, reflectivity, np.full(len(ray), index)))
-        if hits:
-            ray, t_hit, cos, reflectivity, person = (np.concatenate(column) for column in zip(*hits))
-            order = np.lexsort((t_hit, ray))
-            first = order[np.unique(ray[order], return_index=True)[1]]
-            first = first[t_hit[first] < best_range[ray[first]]]
-            target = ray[first]
-            best_range[target], best_cos[target] = t_hit[first], cos[first]
-            best_reflectivity[target], best_person[target] = reflectivity[first], person[first]
-        edge_range = self._edge_range(best_range) if self.has_subrays else None
-        p = self.pulses
-        return FrameHits(range=best_range[:p], cos_incidence=best_cos[:p], reflectivity=best_reflectivity[:p],
-                         person=best_person[:p], edge_range=edge_range, unoccluded=unoccluded,
-                         cast_seconds=cast_seconds)
+        if people:
+            body = self._cast_people(people, time_step_s, phase_steps)
+            cast_seconds = body.cast_seconds
+            pulse_pairs = np.unique(body.person[body.ray < p] * p + body.ray[body.ray < p])
+            unoccluded = np.bincount(pulse_pairs // p, minlength=len(people))
+            order = np.lexsort((body.range, body.ray))
+            first = order[np.diff(body.ray[order], prepend=-1) != 0]  # nearest hit of each ray
+            first = first[body.range[first] < ray_range[body.ray[first]]]
+            target = body.ray[first]
+            ray_range[target] = body.range[first]
+            if self.has_subrays:
+                changed = np.unique(target % p)
+                edge_range[changed] = self._edge_range(ray_range, changed)
+            first = first[target < p]  # the beam centres: what the pulses measure
+            pulse = body.ray[first]
+            cos[pulse], reflectivity[pulse], person[pulse] = (body.cos_incidence[first], body.reflectivity[first],
+                                                              body.person[first])
+        return FrameHits(range=ray_range[:p], cos_incidence=cos, reflectivity=reflectivity, person=person,
+                         edge_range=edge_range, unoccluded=unoccluded, cast_seconds=cast_seconds)
 
-    def _edge_range(self, ray_range: np.ndarray) -> np.ndarray:
-        """(P,) range of a second surface inside each pulse's footprint, nan where the footprint sees one smooth
-        surface. Opposite sub-rays on a smooth surface deviate symmetrically from the centre (a tilted plane
-        spreads the footprint's ranges, it does not shift them); a pair that does not is an edge, and its
-        sub-ray farthest from the centre range gives the second surface."""
-        centre = ray_range[:self.pulses]
-        sub = ray_range[self.pulses:].reshape(SUBRAYS // 2, 2, self.pulses)
+    def _edge_range(self, ray_range: np.ndarray, pulse: np.ndarray) -> np.ndarray:
+        """(n,) range of a second surface inside the footprint of pulses `pulse` (n,), nan where the footprint
+        sees one smooth surface. Opposite sub-rays on a smooth surface deviate symmetrically from the centre (a
+        tilted plane spreads the footprint's ranges, it does not shift them); a pair that does not is an edge, and
+        its sub-ray farthest from the centre range gives the second surface."""
+        centre = ray_range[pulse]
+        sub = ray_range[pulse + self.pulses * np.arange(1, SUBRAYS + 1)[:, None]].reshape(SUBRAYS // 2, 2, len(pulse))
         both = np.isfinite(sub) & np.isfinite(centre)
         deviation = np.subtract(sub, centre, where=both, out=np.zeros_like(sub))
         smooth = both.all(axis=1) & (np.abs(deviation.sum(axis=1)) <= EDGE_ASYMMETRY_M)
         eligible = both & ~smooth[:, None, :] & (np.abs(deviation) > EDGE_ASYMMETRY_M)
-        score = np.where(eligible, np.abs(deviation), -1.0).reshape(SUBRAYS, self.pulses)
+        score = np.where(eligible, np.abs(deviation), -1.0).reshape(SUBRAYS, len(pulse))
         pick = np.argmax(score, axis=0)
-        columns = np.arange(self.pulses)
-        return np.where(score[pick, columns] > 0, sub.reshape(SUBRAYS, self.pulses)[pick, columns], np.nan)
+        columns = np.arange(len(pulse))
+        return np.where(score[pick, columns] > 0, sub.reshape(SUBRAYS, len(pulse))[pick, columns], np.nan)
 
-    def _cast_person(self, person: Person, ray: np.ndarray, time_step_s: float, phase_steps: int | None):
-        """Cast rays (n,) against the parts of `person`, each posed at the ray's pulse time.
-
-        Returns ray (k,), range (k,), cos_incidence (k,), reflectivity (k,) of the rays that hit it (nearest part)
-        and the seconds spent casting."""
+    def _cast_people(self, people: list[Person], time_step_s: float, phase_steps: int | None) -> BodyHits:
+        """Cast the candidate rays of all people against their body parts, each part posed at the ray's pulse
+        time, in one cast. Vectors are component rows (3, n), so that numpy loops run over the rays."""
         bodies = body_scene(self.bank, self.lod)
-        parts = len(self.bank.part_names)
+        parts, gait = len(self.bank.part_names), self.bank.gait_phases
+        trajectories = TrajectoryStack.of([p.trajectory for p in people])
+        ray, person = self.candidate_pairs(trajectories)
         time_of_ray = self.time_offset[ray]
         if time_step_s > 0:
             time_of_ray = (np.floor(time_of_ray / time_step_s) + 0.5) * time_step_s
-        # each ray in the person's body frame at its pulse time (x_world = yaw x_body + xy); keep those passing
-        # near the body in any pose
-        xy, heading, phase, walk = person.trajectory.state(time_of_ray)
+        # each ray in its person's body frame at its pulse time (x_world = yaw x_body + xy); keep those passing
+        # through the box of the body in the poses blended at that time
+        xy, heading, phase, walk = trajectories.state(person, time_of_ray)
         c, s = np.cos(heading), np.sin(heading)
-        relative = self.origin[:2] - xy
-        body_origin = np.stack([c * relative[:, 0] + s * relative[:, 1], -s * relative[:, 0] + c * relative[:, 1],
-                                np.full(len(ray), self.origin[2])], 1)
-        d = self.directions[ray]
-        body_direction = np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]], 1)
-        near = _passes_sphere(body_origin, body_direction, bodies.body_centre[person.shape],
-                              bodies.body_radius[person.shape])
-        ray, body_origin, body_direction = ray[near], body_origin[near], body_direction[near]
-        phase, walk = phase[near], walk[near]
-        # keep the (ray, part) pairs passing near the part in any pose, then pose only those parts
-        pair, part = np.nonzero(_passes_sphere(body_origin[:, None], body_direction[:, None],
-                                               bodies.pose_centre[person.shape], bodies.pose_radius[person.shape]))
-        transform = self.bank.part_transforms(np.full(len(pair), person.shape), phase[pair], walk[pair],
-                                              phase_steps, part=part)
-        rotation = transform[:, :, :3]
-        local_origin = _transpose_apply(rotation, body_origin[pair] - transform[:, :, 3])
-        local_direction = _transpose_apply(rotation, body_direction[pair])
-        geometry = person.shape * parts + part
-        near = _passes_sphere(local_origin, local_direction, bodies.centre[geometry], bodies.radius[geometry])
-        pair, part, geometry = pair[near], part[near], geometry[near]
-        rotation, local_origin, local_direction = rotation[near], local_origin[near], local_direction[near]
-        empty = np.zeros(0)
-        if not len(pair):
-            return np.zeros(0, dtype=np.int64), empty, empty, empty, 0.0
+        relative_x, relative_y = self.origin[0] - xy[:, 0], self.origin[1] - xy[:, 1]
+        d = self.direction_rows.take(ray, axis=1)
+        origin = np.stack([c * relative_x + s * relative_y, c * relative_y - s * relative_x,
+                           np.full(len(ray), self.origin[2])])
+        direction = np.stack([c * d[0] + s * d[1], c * d[1] - s * d[0], d[2]])
+        shape = np.array([p.shape for p in people])[person]
+        lower, _ = self.bank.gait_pose(phase, phase_steps)
+        enter, leave = _box_interval(origin, direction, _blend_box(
+            bodies.body_walk_box.take(shape * gait + lower, axis=-1), bodies.body_stand_box.take(shape, axis=-1), walk))
+        ray, person, shape, phase, lower, walk, enter, leave, origin, direction = _take(
+            np.flatnonzero(leave >= enter), ray, person, shape, phase, lower, walk, enter, leave, origin, direction)
+        # the (ray, part) pairs whose heights inside the body box overlap the part's in any pose, then those
+        # passing through the box of the part in the poses blended at the ray's time
+        height = origin[2] + np.stack([enter, leave]) * direction[2]
+        part_height = bodies.pose_box[:, 2].reshape(2, -1, parts).transpose(0, 2, 1).take(shape, axis=-1)
+        part, pair = np.nonzero((part_height[0] <= height.max(0)) & (part_height[1] >= height.min(0)))
+        geometry = shape[pair] * parts + part
+        box = _blend_box(bodies.walk_box.take((shape[pair] * gait + lower[pair]) * parts + part, axis=-1),
+                         bodies.stand_box.take(geometry, axis=-1), walk[pair])
+        enter, leave = _box_interval(origin.take(pair, axis=1), direction.take(pair, axis=1), box)
+        pair, part, geometry = _take(np.flatnonzero(leave >= enter), pair, part, geometry)
+        # pose those parts at the rays' pulse times, move the rays into the parts' rest frames and keep those
+        # passing through the box of the rest part
+        transform = self.bank.part_transforms(shape[pair], phase[pair], walk[pair], phase_steps, part=part)
+        local_origin = _rotate(transform, origin.take(pair, axis=1) - transform[[3, 7, 11]], inverse=True)
+        local_direction = _rotate(transform, direction.take(pair, axis=1), inverse=True)
+        enter, leave = _box_interval(local_origin, local_direction, bodies.rest_box.take(geometry, axis=-1))
+        pair, geometry, transform, local_origin, local_direction = _take(
+            np.flatnonzero(leave >= enter), pair, geometry, transform, local_origin, local_direction)
+        rays = np.concatenate([local_origin + bodies.offset.take(geometry, axis=1), local_direction]).T
         start = time.perf_counter()
-        t_hit, hit_geometry, primitive, normal = _cast(bodies.scene, local_origin + bodies.offset[geometry],
-                                                       local_direction, self.threads)
-        seconds = time.perf_counter() - start
-        hit = np.isfinite(t_hit) & (hit_geometry == geometry) & (t_hit < MAX_BODY_RANGE_M)
-        order = np.flatnonzero(hit)[np.lexsort((t_hit[hit], pair[hit]))]
-        first = order[np.unique(pair[order], return_index=True)[1]]  # nearest part per ray
-        body_normal = np.einsum("nij,nj->ni", rotation[first], normal[first])
-        cos = np.abs(np.einsum("ni,ni->n", body_normal, body_direction[pair[first]]))
-        cos /= np.linalg.norm(body_normal, axis=1)
-        material = bodies.material[bodies.material_start[geometry[first]] + primitive[first]]
-        return ray[pair[first]], t_hit[first], cos, person.reflectivity[material], seconds
+        t_hit, hit_geometry, primitive, normal = _cast(bodies.scene, rays, self.threads)
+        cast_seconds = time.perf_counter() - start
+        hit = np.flatnonzero(np.isfinite(t_hit) & (hit_geometry == geometry) & (t_hit < MAX_BODY_RANGE_M))
+        pair, geometry, transform = _take(hit, pair, geometry, transform)
+        body_normal = _rotate(transform, normal[hit].T)
+        cos_incidence = (np.abs((body_normal * direction.take(pair, axis=1)).sum(0))
+                         / np.linalg.norm(body_normal, axis=0))
+        material = bodies.material[bodies.material_start[geometry] + primitive[hit]]
+        reflectivity = np.array([p.reflectivity for p in people])[person[pair], material]
+        return BodyHits(ray[pair], person[pair], t_hit[hit].astype(np.float64), cos_incidence, reflectivity,
+                        cast_seconds)
 
 
-def _transpose_apply(rotation: np.ndarray, vector: np.ndarray) -> np.ndarray:
-    """(n, 3) R^T v for (n, 3, 3) R and (n, 3) v."""
-    return (rotation[:, 0, :] * vector[:, 0:1] + rotation[:, 1, :] * vector[:, 1:2]
-            + rotation[:, 2, :] * vector[:, 2:3])
+@dataclass
+class BodyHits:
+    """Every hit of a ray on a body part (n hits): ray (n,), person (n,), range (n,) [m], cos_incidence (n,),
+    reflectivity (n,); cast_seconds: time spent inside Open3D's cast_rays."""
+
+    ray: np.ndarray
+    person: np.ndarray
+    range: np.ndarray
+    cos_incidence: np.ndarray
+    reflectivity: np.ndarray
+    cast_seconds: float
 
 
-def _passes_sphere(origin: np.ndarray, direction: np.ndarray, centre: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """Whether rays origin + t direction (t > 0) pass within `radius` of `centre`; arrays broadcast, the last axis
-    of origin, direction and centre is xyz."""
-    to_centre = [centre[..., k] - origin[..., k] for k in range(3)]
-    dx, dy, dz = direction[..., 0], direction[..., 1], direction[..., 2]
-    along = (to_centre[0] * dx + to_centre[1] * dy + to_centre[2] * dz) / (dx * dx + dy * dy + dz * dz)
-    gap = [to_centre[0] - along * dx, to_centre[1] - along * dy, to_centre[2] - along * dz]
-    return (along > 0) & (gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2] < radius ** 2)
+def _runs(start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Concatenated runs start[i], start[i] + 1, ..., start[i] + count[i] - 1 of integers."""
+    return np.arange(count.sum()) + np.repeat(start - (np.cumsum(count) - count), count)
+
+
+def _take(index: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each of `arrays` at `index` along its last axis."""
+    return tuple(np.take(a, index, axis=-1) for a in arrays)
+
+
+def _rotate(transform: np.ndarray, vector: np.ndarray, inverse: bool = False) -> np.ndarray:
+    """(3, n) R v (or R^T v) for the rotations R of (12, n) flattened 3x4 transforms [R | t] and (3, n) v."""
+    r = transform.reshape(3, 4, -1)[:, :3]
+    if inverse:
+        r = r.transpose(1, 0, 2)
+    return r[:, 0] * vector[0] + r[:, 1] * vector[1] + r[:, 2] * vector[2]
+
+
+def _blend_box(walking: np.ndarray, standing: np.ndarray, walk: np.ndarray) -> np.ndarray:
+    """(2, 3, n) boxes of poses blended from walking poses (boxes walking (2, 3, n)) and the standing pose (boxes
+    standing) with walk weights walk (n,) in [0, 1]: the union of the boxes of the poses with a weight."""
+    low = np.minimum(np.where(walk > 0, walking[0], np.inf), np.where(walk < 1, standing[0], np.inf))
+    high = np.maximum(np.where(walk > 0, walking[1], -np.inf), np.where(walk < 1, standing[1], -np.inf))
+    return np.stack([low, high])
+
+
+def _box_interval(origin: np.ndarray, direction: np.ndarray, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters t >= 0 at which rays origin + t direction enter and leave the axis-aligned boxes (2, 3, ...)
+    [low, high] (slab test; leave < enter where a ray misses its box); arrays broadcast, the first axis of origin
+    and direction is xyz."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inverse = 1.0 / direction
+        t_low, t_high = (box[0] - origin) * inverse, (box[1] - origin) * inverse
+    enter = np.maximum(np.fmax.reduce(np.fmin(t_low, t_high), axis=0), 0.0)  # fmin / fmax skip 0 * inf = nan
+    return enter, np.fmin.reduce(np.fmax(t_low, t_high), axis=0)

@@ -42,10 +42,15 @@ def frame_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(index,)))
 
 
-@functools.lru_cache(maxsize=16)
 def get_caster(scene_name: str, mount: Mount, pattern_name: str, sensor_name: str, lod: str,
                threads: int = 0) -> Caster:
     """The caster of one viewpoint, built once per process (the static world is cast here)."""
+    return _cached_caster(scene_name, mount, pattern_name, sensor_name, lod, threads)
+
+
+@functools.lru_cache(maxsize=16)  # called with all arguments positional: one cache entry per viewpoint
+def _cached_caster(scene_name: str, mount: Mount, pattern_name: str, sensor_name: str, lod: str,
+                   threads: int) -> Caster:
     pattern = get_pattern(pattern_name)
     directions, time_offset, _ = pattern.pulses()
     return Caster(get_scene(scene_name), mount, directions, time_offset, pattern.frame_period_s, load_body_bank(),
@@ -69,8 +74,11 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     start = time.perf_counter()
     measured, intensity, valid = sensor.measure(hits.range, hits.cos_incidence, hits.reflectivity, rng,
                                                 hits.edge_range)
-    xyz = caster.origin + caster.pulse_directions[valid] * measured[valid, None]
-    points = np.concatenate([xyz, intensity[valid, None]], axis=1).astype(np.float32)
+    pulse = np.flatnonzero(valid)
+    points = np.empty((len(pulse), 4), dtype=np.float32)
+    for k in range(3):  # component by component: numpy loops run over the points
+        points[:, k] = caster.origin[k] + caster.direction_rows[k, pulse] * measured[pulse]
+    points[:, 3] = intensity[pulse]
     time_offset = caster.time_offset[:caster.pulses][valid].astype(np.float32)
     seconds["sensor"] = time.perf_counter() - start
     # labels from the simulator state

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from pcdet_memslidar.sim.bodies import BodyBank
+from pcdet_memslidar.sim.motion import TrajectoryStack
 from pcdet_memslidar.sim.people import Person
 
 CLASS_NAME = "Pedestrian"
@@ -18,19 +19,23 @@ MIN_POINTS = 5  # boxes with fewer points are kept in the metadata but not label
 OCCLUSION_LEVELS = (0.1, 0.5)  # occluded share below which a box is KITTI level 0 (fully visible), 1 (partly)
 
 
-def person_box(bank: BodyBank, lod: str, person: Person, time_s: float) -> np.ndarray:
-    """(7,) box [x, y, z_center, dx, dy, dz, heading] of `person`'s posed body at `time_s` [s]."""
-    xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
-    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[0]
-    vertices = bank.posed_vertices(lod, person.shape, transforms)
-    low, high = vertices.min(0), vertices.max(0)
-    low[2] = 0.0  # people stand on the flat ground; blended gait poses may float up to ~1 cm above it
+def person_boxes(bank: BodyBank, lod: str, people: list[Person], time_s: float) -> np.ndarray:
+    """(n, 7) boxes [x, y, z_center, dx, dy, dz, heading] of the posed bodies of `people` at `time_s` [s]."""
+    if not people:
+        return np.zeros((0, 7))
+    count = len(people)
+    xy, heading, phase, walk = TrajectoryStack.of([p.trajectory for p in people]).state(
+        np.arange(count), np.full(count, float(time_s)))
+    shape = np.array([p.shape for p in people])
+    vertices = bank.posed_vertices(lod, shape, bank.part_transforms(shape, phase, walk))
+    low, high = vertices.min(2).T, vertices.max(2).T
+    low[:, 2] = 0.0  # people stand on the flat ground; blended gait poses may float up to ~1 cm above it
     centre = 0.5 * (low + high)
-    c, s = np.cos(heading[0]), np.sin(heading[0])
-    x = xy[0, 0] + c * centre[0] - s * centre[1]
-    y = xy[0, 1] + s * centre[0] + c * centre[1]
-    wrapped = (heading[0] + np.pi) % (2 * np.pi) - np.pi
-    return np.array([x, y, centre[2], *(high - low), wrapped])
+    c, s = np.cos(heading), np.sin(heading)
+    x = xy[:, 0] + c * centre[:, 0] - s * centre[:, 1]
+    y = xy[:, 1] + s * centre[:, 0] + c * centre[:, 1]
+    wrapped = (heading + np.pi) % (2 * np.pi) - np.pi
+    return np.column_stack([x, y, centre[:, 2], high - low, wrapped])
 
 
 def occlusion_level(occluded_share: float) -> int:
@@ -43,11 +48,11 @@ def label_people(bank: BodyBank, lod: str, people: list[Person], time_s: float, 
     """Boxes of all people.
 
     points_per_person (people,) returned points of each person; hits_per_person (people,) pulses whose nearest
-    hit is the person (before dropout); unoccluded (people,) pulses that would hit each person on its own. Returns boxes (M, 7) and names (M,) of the labelled people (>= MIN_POINTS points) and one
-    metadata dict per person (labelled or not)."""
+    hit is the person (before dropout); unoccluded (people,) pulses that would hit each person on its own.
+    Returns boxes (M, 7) and names (M,) of the labelled people (>= MIN_POINTS points) and one metadata dict per
+    person (labelled or not)."""
     boxes, records = [], []
-    for index, person in enumerate(people):
-        box = person_box(bank, lod, person, time_s)
+    for index, (person, box) in enumerate(zip(people, person_boxes(bank, lod, people, time_s))):
         visible = int(points_per_person[index])
         share = 0.0 if unoccluded[index] == 0 else float(max(0.0, 1.0 - hits_per_person[index] / unoccluded[index]))
         labelled = visible >= MIN_POINTS

@@ -16,8 +16,8 @@ BEHAVIOURS = ("walk", "turn", "stop_and_go", "stand")
 
 @dataclass(frozen=True)
 class Trajectory:
-    """times (n,) [s]; xy (n, 2) [m]; heading (n,) [rad] unwrapped, direction of travel (facing when standing);
-    cycles (n,) gait cycles walked so far; speed (n,) [m/s]."""
+    """times (n,) [s] evenly spaced; xy (n, 2) [m]; heading (n,) [rad] unwrapped, direction of travel (facing when
+    standing); cycles (n,) gait cycles walked so far; speed (n,) [m/s]."""
 
     times: np.ndarray
     xy: np.ndarray
@@ -28,9 +28,7 @@ class Trajectory:
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """At times t (m,) [s]: xy (m, 2), heading (m,), gait phase (m,) in cycles, walk weight (m,) in [0, 1]."""
         t = np.asarray(t, dtype=np.float64)
-        xy = np.stack([np.interp(t, self.times, self.xy[:, 0]), np.interp(t, self.times, self.xy[:, 1])], 1)
-        walk_weight = np.clip(np.interp(t, self.times, self.speed) / WALK_SPEED_FULL, 0.0, 1.0)
-        return xy, np.interp(t, self.times, self.heading), np.interp(t, self.times, self.cycles), walk_weight
+        return TrajectoryStack.of([self]).state(np.zeros(t.shape, dtype=np.int64), t)
 
     def offset(self, lateral_m: float, stride_m: float) -> "Trajectory":
         """The trajectory of a companion walking `lateral_m` to the left (negative: right), same timing."""
@@ -38,17 +36,52 @@ class Trajectory:
         return from_path(self.times, self.xy + lateral_m * normal, self.heading, stride_m)
 
 
+@dataclass(frozen=True)
+class TrajectoryStack:
+    """The trajectories of k people sampled at the same evenly spaced times (n,) [s], as one table samples
+    (5, k, n) of x [m], y [m], heading [rad], gait cycles and speed [m/s]; channel-major, so that numpy loops run
+    over the many (person, time) pairs whose states it interpolates in one pass."""
+
+    times: np.ndarray
+    samples: np.ndarray
+
+    @classmethod
+    def of(cls, trajectories: list[Trajectory]) -> "TrajectoryStack":
+        times = trajectories[0].times
+        if any(not np.array_equal(t.times, times) for t in trajectories[1:]):
+            raise ValueError("trajectories stacked together must share their sample times")
+        samples = np.stack([np.stack([t.xy[:, 0], t.xy[:, 1], t.heading, t.cycles, t.speed]) for t in trajectories],
+                           axis=1)
+        return cls(times, samples)
+
+    def state(self, person: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Of person (m,) at times t (m,) [s] (clamped to the sampled window), linearly interpolated: xy (m, 2),
+        heading (m,), gait phase (m,) in cycles, walk weight (m,) in [0, 1]."""
+        last = len(self.times) - 1
+        position = np.clip((t - self.times[0]) / (self.times[-1] - self.times[0]) * last, 0.0, last)
+        lower = np.minimum(position.astype(np.int64), last - 1)
+        column = person * len(self.times) + lower
+        flat = self.samples.reshape(len(self.samples), -1)
+        low, high = flat.take(column, axis=1), flat.take(column + 1, axis=1)
+        x, y, heading, cycles, speed = low + (position - lower) * (high - low)
+        return np.stack([x, y], axis=1), heading, cycles, np.clip(speed / WALK_SPEED_FULL, 0.0, 1.0)
+
+
 def _smoothstep(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
+def _distance_walked(xy: np.ndarray) -> np.ndarray:
+    """(n,) length [m] of the path through the positions xy (n, 2) up to each of them."""
+    return np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1])))])
+
+
 def from_path(times: np.ndarray, xy: np.ndarray, heading: np.ndarray, stride_m: float) -> Trajectory:
     """Trajectory along sampled positions xy (n, 2): speed and gait cycles from the distance walked."""
-    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-    distance = np.concatenate([[0.0], np.cumsum(step)])
-    speed = np.gradient(distance, times)
-    return Trajectory(times=times, xy=xy, heading=heading, cycles=distance / stride_m, speed=speed)
+    distance = _distance_walked(xy)
+    return Trajectory(times=times, xy=xy, heading=heading, cycles=distance / stride_m,
+                      speed=np.gradient(distance, times))
 
 
 def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndarray, heading: float,
@@ -73,7 +106,8 @@ def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndar
         heading_profile = heading + sign * turn * (_smoothstep((times - event_time) / (0.5 * event_length)) - 0.5)
     elif behaviour == "stop_and_go":
         ramp = 0.6  # s to stop or to start
-        stopped = _smoothstep((times - event_time) / ramp) * (1.0 - _smoothstep((times - event_time - ramp - event_length) / ramp))
+        stopped = (_smoothstep((times - event_time) / ramp)
+                   * (1.0 - _smoothstep((times - event_time - ramp - event_length) / ramp)))
         speed_profile = speed * (1.0 - stopped)
     elif behaviour == "stand":
         speed_profile = np.zeros(times.shape)
@@ -82,7 +116,7 @@ def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndar
     velocity = speed_profile[:, None] * np.stack([np.cos(heading_profile), np.sin(heading_profile)], 1)
     xy = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * SAMPLE_DT, axis=0)])
     xy += anchor_xy - np.array([np.interp(centre, times, xy[:, 0]), np.interp(centre, times, xy[:, 1])])
-    trajectory = from_path(times, xy, heading_profile, stride_m)
     # gait cycles follow the distance walked (frozen while standing); the speed is the planned profile
-    return Trajectory(times=times, xy=xy, heading=heading_profile, cycles=trajectory.cycles, speed=speed_profile)
+    return Trajectory(times=times, xy=xy, heading=heading_profile, cycles=_distance_walked(xy) / stride_m,
+                      speed=speed_profile)
 

@@ -63,6 +63,8 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
     count = int(rng.integers(preset.people[0], preset.people[1] + 1))
     x_min, x_max = visible_x_range(mount, vfov_deg, scene)
     names, weights = zip(*preset.behaviours)
+    behaviour_cdf = np.cumsum(np.asarray(weights) / np.sum(weights))  # drawn with one uniform, as Generator.choice
+    behaviour_cdf /= behaviour_cdf[-1]
     people: list[Person] = []
     frame = None
     for _ in range(MAX_TRIES):
@@ -72,7 +74,7 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
         x = rng.uniform(x_min, x_max)
         y = rng.uniform(-1.0, 1.0) * (x * np.tan(np.deg2rad(hfov_deg / 2)) + 1.0)
         heading = scene.walk_headings[rng.integers(len(scene.walk_headings))] + rng.normal(0.0, 0.2)
-        behaviour = names[rng.choice(len(names), p=np.asarray(weights) / np.sum(weights))]
+        behaviour = names[int(np.searchsorted(behaviour_cdf, rng.random(), side="right"))]
         speed = float(np.clip(rng.normal(1.37, 0.15), 0.9, 1.8))
         group = len(people)
         members = []
@@ -105,7 +107,7 @@ def _is_free(person: Person, others: list[Person], scene: Scene, separation_m: f
         if inside.any():
             return False
     for other in others:
-        distance = np.linalg.norm(path - other.trajectory.xy[frame], axis=1).min()
-        if distance < separation_m:
+        gap = path - other.trajectory.xy[frame]
+        if np.hypot(gap[:, 0], gap[:, 1]).min() < separation_m:
             return False
     return True

@@ -27,6 +27,7 @@ from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.sim.bodies import BANK_PATH
 from pcdet_memslidar.sim.domains import DomainPreset
 from pcdet_memslidar.sim.frame import Frame, simulate_frame
+from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
@@ -122,11 +123,12 @@ def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: i
                                                          f"asked for {settings['fingerprint']}); delete the folder")
         skipped += 1
     threads = 1 if workers > 1 else 0
+    keep_freed_memory()  # reuse the memory of each frame's numpy temporaries (see sim/memory.py)
     jobs = [(preset, seed, index, str(root), settings["fingerprint"], threads) for index in todo]
     bar = tqdm(total=len(jobs), desc=f"simulate {preset.name}", unit="frame", disable=not progress)
     points = 0
     if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=keep_freed_memory) as pool:
             for count in pool.map(_write_one, jobs, chunksize=4):
                 points += count
                 bar.update()

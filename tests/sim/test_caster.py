@@ -1,15 +1,16 @@
-"""Ray casting geometry: ground plane, box obstacle, parallel and grazing rays, moving people."""
+"""Ray casting geometry: ground, box obstacle, parallel and grazing rays, moving people, culling vs brute force."""
 import numpy as np
 import pytest
 
 from pcdet_memslidar.geometry.mount import Mount
-from pcdet_memslidar.sim.bodies import load_body_bank
-from pcdet_memslidar.sim.caster import Caster
+from pcdet_memslidar.sim.bodies import LODS, load_body_bank
+from pcdet_memslidar.sim.caster import BODY_HEIGHT_M, BODY_REACH_M, Caster, body_scene
 from pcdet_memslidar.sim.motion import make_trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person
 from pcdet_memslidar.sim.scenes import Scene, World
 from pcdet_memslidar.sim.sensor import get_sensor
+from pcdet_memslidar.utils.open3d import import_open3d
 
 PATTERN = get_pattern("cube1_paper")
 DIRECTIONS, TIME_OFFSET, _ = PATTERN.pulses()
@@ -125,3 +126,66 @@ def test_detail_levels_hit_the_same_body(lod):
     both = (fine.person == 0) & (other.person == 0)
     assert both.sum() > 0.9 * (fine.person == 0).sum()
     assert np.median(np.abs(fine.range[both] - other.range[both])) < 0.02
+
+
+def posed_body_triangles(bank, person, time_s):
+    """(T * 3, 3) corners of the triangles of `person`'s 'fine' body posed at `time_s`, in the ground frame."""
+    mesh = bank.meshes["fine"]
+    xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
+    transform = bank.part_transforms(np.array([person.shape]), phase, walk)[:, 0].T.reshape(-1, 3, 4)
+    transform = transform[mesh.triangle_part]
+    rest = mesh.rest_vertices[person.shape][mesh.triangles].astype(np.float64)
+    body = np.einsum("tij,tkj->tki", transform[:, :, :3], rest) + transform[:, None, :, 3]
+    c, s = np.cos(heading[0]), np.sin(heading[0])
+    world = body @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+    world[..., :2] += xy[0]
+    return world.reshape(-1, 3)
+
+
+@pytest.mark.parametrize("mount, placements", [
+    (Mount(4.0, 16.0), [(6, 0, "walk"), (9, -3, "stand"), (12, 4, "turn"), (4.5, 0.5, "walk"),
+                        (20, -8, "stop_and_go"), (8, 5.5, "walk")]),
+    (Mount(2.5, 60.0), [(0.3, 0.1, "stand"), (1.8, -1.0, "walk"), (2.5, 1.2, "turn")]),  # from above
+])
+def test_culled_casting_finds_exactly_the_hits_of_a_brute_force_cast(mount, placements):
+    """Every pulse against one scene holding the ground and all bodies posed at mid-frame (no culling at all) vs
+    the caster with one instant for the whole frame: the same pulses hit the same people."""
+    o3d = import_open3d()
+    bank = load_body_bank()
+    rng = np.random.default_rng(3)
+    people = []
+    for index, (x, y, behaviour) in enumerate(placements):
+        trajectory = make_trajectory(behaviour, rng, np.array([x, y], dtype=float), rng.uniform(-3, 3), 1.4, 1.44,
+                                     PATTERN.frame_period_s)
+        people.append(Person(index, trajectory, np.full(4, 0.5), behaviour, index, False))
+    scene = make_scene(False)
+    caster = make_caster(scene, mount)
+    hits = caster.cast_frame(people, time_step_s=PATTERN.frame_period_s)
+
+    brute = o3d.t.geometry.RaycastingScene()
+    vertices, triangles, _ = scene.triangles()
+    brute.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))  # geometry 0
+    for person in people:  # geometry 1 + person index
+        corners = posed_body_triangles(bank, person, PATTERN.frame_period_s / 2).astype(np.float32)
+        brute.add_triangles(o3d.core.Tensor(corners),
+                            o3d.core.Tensor(np.arange(len(corners), dtype=np.uint32).reshape(-1, 3)))
+    rays = np.concatenate([np.broadcast_to(caster.origin, DIRECTIONS.shape), caster.pulse_directions], 1)
+    result = brute.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+    t_hit, geometry = result["t_hit"].numpy(), result["geometry_ids"].numpy().astype(np.int64)
+    person = np.where(np.isfinite(t_hit) & (geometry > 0), geometry - 1, -1)
+    assert np.all(np.bincount(person[person >= 0], minlength=len(people)) > 20)
+    # the caster's body parts sit far apart in float32 (about 0.1 mm resolution): a grazing ray may flip
+    assert np.count_nonzero(hits.person != person) <= 0.002 * np.count_nonzero((hits.person >= 0) | (person >= 0))
+    on_person = (person >= 0) & (hits.person == person)
+    error = np.abs(hits.range[on_person] - t_hit[on_person])
+    assert np.median(error) < 1e-4 and np.percentile(error, 99) < 2e-3 and error.max() < 0.05
+    static = (person < 0) & (hits.person < 0) & np.isfinite(t_hit)
+    assert np.allclose(hits.range[static], t_hit[static], atol=1e-4)
+
+
+@pytest.mark.parametrize("lod", LODS)
+def test_candidate_cylinder_holds_every_body_in_every_pose(lod):
+    """The rays cast against a person come from a cylinder of BODY_REACH_M around its path, up to BODY_HEIGHT_M."""
+    low, high = body_scene(load_body_bank(), lod).pose_box  # (3, G): each part of each shape over all poses
+    assert np.hypot(np.maximum(-low[0], high[0]), np.maximum(-low[1], high[1])).max() <= BODY_REACH_M
+    assert high[2].max() <= BODY_HEIGHT_M and low[2].min() > -0.01

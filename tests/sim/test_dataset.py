@@ -10,7 +10,7 @@ from pcdet_memslidar.io.layout import KittiLayout, read_frame
 from pcdet_memslidar.sim.bodies import load_body_bank
 from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.frame import get_caster, render, simulate_frame
-from pcdet_memslidar.sim.labels import MIN_POINTS, person_box
+from pcdet_memslidar.sim.labels import MIN_POINTS, person_boxes
 from pcdet_memslidar.sim.motion import make_trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
@@ -57,7 +57,7 @@ def test_box_is_the_posed_body_at_mid_frame_heading_along_travel():
     trajectory = make_trajectory("walk", np.random.default_rng(0), np.array([12.0, 1.0]), 0.7, 1.4, 1.44,
                                  PATTERN.frame_period_s)
     person = Person(4, trajectory, np.full(4, 0.5), "walk", 0, False)
-    box = person_box(bank, "fine", person, PATTERN.frame_period_s / 2)
+    box = person_boxes(bank, "fine", [person], PATTERN.frame_period_s / 2)[0]
     assert box[6] == pytest.approx(0.7)
     assert box[2] - box[5] / 2 == pytest.approx(0.0, abs=1e-3)  # feet on the ground
     assert box[5] == pytest.approx(bank.shape_stature_m[4], abs=0.05)  # 1.86 m tall
