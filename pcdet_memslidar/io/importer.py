@@ -31,7 +31,7 @@ from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
 from pcdet_memslidar.utils.atomic import atomic_dir, write_text
 
 FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
-POINT_CLOUD_RANGE = (0.0, -20.48, -0.5, 40.96, 20.48, 3.5)  # the person detector's range [m] (cfgs)
+POINT_CLOUD_RANGE = (2.56, -23.04, -0.5, 40.96, 23.04, 2.5)  # POINT_CLOUD_RANGE of cfgs/dataset_configs [m]
 MIN_BOX_POINTS = 5
 GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
 REPORT_NAME = "import_report.json"
