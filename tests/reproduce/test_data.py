@@ -1,0 +1,45 @@
+"""What data the reproduction asks for, and that imported recordings are used instead of simulated stand-ins."""
+import logging
+
+import numpy as np
+import pytest
+
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.io.layout import KittiLayout, write_frame
+from pcdet_memslidar.reproduce import MODELS, check_run_config, frames_needed, model_config, prepare_domain
+from pcdet_memslidar.sim.writer import SETTINGS_FILE
+
+
+def test_frames_needed_per_profile(tmp_path):
+    smoke = frames_needed({model: model_config(model, "smoke", tmp_path) for model in MODELS})
+    assert {name: count for name, (_, count) in smoke.items()} == {"sim": 20, "real": 20, "industrial": 8}
+    assert smoke["real"][0] == tmp_path / "real"
+    paper = frames_needed({model: model_config(model, "paper", tmp_path) for model in MODELS})
+    assert {name: count for name, (_, count) in paper.items()} == {"sim": 2100, "real": 2100, "industrial": 230}
+
+
+def test_overrides_reach_every_model(tmp_path):
+    cfg = model_config("M4", "smoke", tmp_path, ["DATA_CONFIG.MIX.TOTAL", "10", "OPTIMIZATION.NUM_EPOCHS", "3"])
+    assert cfg.DATA_CONFIG.MIX.TOTAL == 10 and cfg.OPTIMIZATION.NUM_EPOCHS == 3
+    assert cfg.DATA_CONFIG.DATA_PATH == str(tmp_path) and cfg.PROFILE == "smoke"
+
+
+def test_imported_recordings_are_not_overwritten(tmp_path):
+    root = tmp_path / "real"
+    layout = KittiLayout(root)
+    box = np.array([[10.0, 0.0, 0.88, 0.8, 0.6, 1.76, 0.0]])
+    for index in range(3):
+        points = np.c_[np.random.default_rng(index).uniform(5, 15, (50, 3)), np.ones(50)].astype(np.float32)
+        write_frame(layout, f"{index:06d}", points, ["Pedestrian"], box, {"source": "import"})
+    before = {path: path.read_bytes() for path in root.rglob("*") if path.is_file()}
+    prepare_domain("real", root, 20, logging.getLogger("test"))
+    after = {path: path.read_bytes() for path in root.rglob("*") if path.is_file()}
+    assert after == before and not (root / SETTINGS_FILE).exists()
+
+
+def test_run_folder_of_another_config_is_refused(tmp_path):
+    run_dir = tmp_path / "models" / "M1" / "seed_0"
+    check_run_config(model_config("M1", "smoke", tmp_path), run_dir)
+    check_run_config(model_config("M1", "smoke", tmp_path), run_dir)  # same config: reused
+    with pytest.raises(ConfigError, match="trained with another config"):
+        check_run_config(model_config("M1", "smoke", tmp_path, ["OPTIMIZATION.NUM_EPOCHS", "2"]), run_dir)

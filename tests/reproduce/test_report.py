@@ -1,0 +1,124 @@
+"""Report writer and figures on hand-made results (no training): exact numbers, complete tables, valid PNGs."""
+import json
+
+import numpy as np
+import pytest
+
+from pcdet_memslidar.evaluation.figures import (choose_example_frames, close_people, plot_ap_vs_time,
+                                                plot_example_frames, plot_pr_curves)
+from pcdet_memslidar.evaluation.report import (gain_over_reference, render_report, summarise_runs, table2,
+                                               write_report)
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def person(x, y, heading=0.0):
+    return [x, y, 0.88, 0.8, 0.6, 1.76, heading]
+
+
+def make_results(ap: dict, seeds=(0,), std=0.0):
+    models = {}
+    for name, value in ap.items():
+        metrics = {"AP3D_R40": value, "AP3D_R11": value + 0.01, "APBEV_R40": value + 0.02, "APBEV_R11": value + 0.03,
+                   "AP3D_R40_0-10m": value, "AP3D_R40_10-20m": None, "ms_per_frame": 120.0}
+        sim = {"M1": 0, "M2": 20, "M3": 10, "M4": 14}[name]
+        counts = {"sim": {"frames": sim, "train": sim - sim * 3 // 10, "val": sim * 3 // 10},
+                  "real": {"frames": 20 - sim, "train": (20 - sim) - (20 - sim) * 3 // 10, "val": (20 - sim) * 3 // 10}}
+        models[name] = {"cfg": f"cfgs/{name.lower()}.yaml", "counts": counts, "mean": metrics,
+                        "std": {key: (None if v is None else std) for key, v in metrics.items()},
+                        "runs": [{"seed": s, "metrics": metrics, "num_gt": {"all": 5, "0-10m": 3, "10-20m": 0},
+                                  "num_dt": {"all": 7}, "predictions": f"models/{name}/seed_{s}/pred"} for s in seeds]}
+    return {"profile": "smoke", "seeds": list(seeds), "command": "memslidar reproduce --profile smoke",
+            "date": "2025-01-01T00:00:00+00:00", "wall_seconds": 90.0, "test_domain": "industrial",
+            "environment": {"package": "0.1.0", "python": "3.11", "libraries": {"torch": "2.13.0"},
+                            "machine": {"cpu": "test cpu", "cores": 2, "torch_threads": 2, "gpu": None,
+                                        "load_average_1min": 1.5}},
+            "stages": {"data": 10.0, "train M1": 20.0},
+            "data": {"industrial": {"path": "/d", "frames": 8, "boxes": 20}},
+            "models": models, "figures": {"examples": "fig3_examples.png"},
+            "example_frames": [{"role": "easy", "frame_id": "000001", "why": "because"}]}
+
+
+def test_summarise_runs_mean_and_sample_std():
+    runs = [{"metrics": {"AP3D_R40": 0.2, "bin": 0.5}}, {"metrics": {"AP3D_R40": 0.4, "bin": None}}]
+    mean, std = summarise_runs(runs)
+    assert mean["AP3D_R40"] == pytest.approx(0.3)
+    assert std["AP3D_R40"] == pytest.approx(np.sqrt(0.02))  # sample std of (0.2, 0.4)
+    assert mean["bin"] is None and std["bin"] is None
+    one_mean, one_std = summarise_runs(runs[:1])
+    assert one_mean["AP3D_R40"] == 0.2 and one_std["AP3D_R40"] == 0.0
+
+
+def test_gain_over_m1_in_percentage_points():
+    results = make_results({"M1": 0.10, "M2": 0.27, "M3": 0.54, "M4": 0.45})
+    gains = gain_over_reference(results["models"])
+    assert gains["M1"] == pytest.approx(0.0)
+    assert gains["M3"] == pytest.approx(44.0)
+    assert gains["M4"] == pytest.approx(35.0)
+
+
+def test_report_tables_complete_and_consistent(tmp_path):
+    results = make_results({"M1": 0.10, "M2": 0.27, "M3": 0.54, "M4": 0.45})
+    report_path, json_path = write_report(results, tmp_path)
+    text = report_path.read_text()
+    stored = json.loads(json_path.read_text())
+    assert stored["models"]["M3"]["mean"]["AP3D_R40"] == 0.54
+    assert stored["models"]["M3"]["mean"]["AP3D_R40_10-20m"] is None
+    model_rows = [line for line in text.splitlines() if line.startswith(("| M1 ", "| M2 ", "| M3 ", "| M4 "))]
+    assert len(model_rows) == 4 + 4 + 4  # Table 2, Table 3 and the distance-bin table each have M1-M4
+    assert "| M3 | SECOND | 0.540 | 0.54 | +44.0 | +44.0 | 0.550 | 0.560 | 0.570 | 120.0 |" in text
+    assert "| M4 | 70 / 30 | 14 / 6 | 10 / 5 | 4 / 1 | 1470 / 630 |" in text
+    assert "0-10m (3 gt)" in text and "10-20m (0 gt)" in text and "n/a" in text
+    assert "simulated stand-ins" in text and "![example frames](fig3_examples.png)" in text
+    assert "**easy** (frame 000001): because" in text
+
+
+def test_report_with_seeds_shows_mean_and_std(tmp_path):
+    results = make_results({"M1": 0.1, "M2": 0.2, "M3": 0.3, "M4": 0.4}, seeds=(0, 1, 2), std=0.05)
+    text = render_report(results)
+    assert "mean ± standard deviation over 3 training seeds [0, 1, 2]" in text
+    assert "| M2 | SECOND | 0.200 ± 0.050 | 0.27 | +10.0 | +17.0 |" in text
+
+
+def test_table2_percentages():
+    lines = table2(make_results({"M1": 0.1, "M2": 0.1, "M3": 0.1, "M4": 0.1}))
+    assert lines[2].startswith("| M1 | 0 / 100 | 0 / 20 |")
+    assert lines[4].startswith("| M3 | 50 / 50 | 10 / 10 |")
+
+
+def test_close_people_counts():
+    assert close_people(np.array([person(10, 0)])) == 0
+    assert close_people(np.array([person(10, 0), person(10, 1.0), person(20, 5)])) == 2
+
+
+def test_example_frames_chosen_by_their_documented_rule():
+    easy = np.array([person(12, 0)])
+    deviating = np.array([person(15, 3), person(22, -4)])
+    crowded = np.array([person(18, 0), person(18, 0.9), person(18.9, 0.4), person(17.2, 0.5)])
+    gt = [deviating, easy, crowded]
+    exact = [{"boxes_lidar": boxes, "score": np.ones(len(boxes))} for boxes in gt]
+    shifted = [dict(exact[0], boxes_lidar=deviating + [0.35, 0, 0, 0, 0, 0, 0]), exact[1], exact[2]]
+    chosen = choose_example_frames(gt, {"M1": shifted, "M2": shifted, "M3": exact, "M4": exact})
+    assert [(e.role, e.index) for e in chosen] == [("easy", 1), ("deviating", 0), ("crowded", 2)]
+    assert "4 of 4 people" in chosen[2].why and "4 (model, person) pairs" in chosen[1].why
+    # predictions below the score threshold count as missing
+    faint = [dict(anno, score=np.full(len(anno["score"]), 0.05)) for anno in exact]
+    assert [e.index for e in choose_example_frames(gt, {"M1": faint})] == [1, 0, 2]
+
+
+def test_figures_are_written(tmp_path):
+    rng = np.random.default_rng(0)
+    boxes = np.array([person(12, 0), person(14, 1)])
+    points = np.c_[rng.uniform(5, 20, (500, 2)), rng.uniform(0, 2, 500), rng.uniform(0, 1, 500)]
+    annos = [{"boxes_lidar": boxes + 0.1, "score": np.array([0.9, 0.2])}]
+    curve = {"recall": np.array([0.5, 1.0]), "precision": np.array([1.0, 0.5])}
+    paths = [
+        plot_example_frames(tmp_path / "ex.png", [{"points": points, "gt_boxes": boxes, "title": "t"}],
+                            {"M1": annos, "M2": annos}),
+        plot_pr_curves(tmp_path / "pr.png", {"M1": {"3D": curve, "BEV": curve}}, {"M1": {"3D": 0.7, "BEV": None}}),
+        plot_ap_vs_time(tmp_path / "t.png", [{"name": "M1", "ms_per_frame": 100.0, "ap": 0.5, "group": "run"},
+                                             {"name": "x", "ms_per_frame": 50.0, "ap": None, "group": "bench"}]),
+    ]
+    for path in paths:
+        assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ex.png", "pr.png", "t.png"]  # no temporary files left
