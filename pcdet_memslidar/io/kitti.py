@@ -49,8 +49,8 @@ def _check_points(path, points: np.ndarray) -> np.ndarray:
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 4:
         raise DataFormatError(path, f"points must have shape (N, 4) [x, y, z, intensity], got {points.shape}")
-    bad = ~np.isfinite(points).all(axis=1)
-    if bad.any():
+    if not np.isfinite(points).all():  # one fast pass; locate the bad rows only when there are some
+        bad = ~np.isfinite(points).all(axis=1)
         raise DataFormatError(path, f"{bad.sum()} point(s) with NaN or inf, first at point index "
                                     f"{np.flatnonzero(bad)[0]}; drop invalid returns before writing")
     return points

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 BANK_PATH = Path(__file__).resolve().parents[1] / "assets" / "body_bank.npz"
 LODS = ("coarse", "medium", "fine", "full")
@@ -33,9 +34,16 @@ class BodyMesh:
 
     @functools.cached_property
     def part_vertices(self) -> tuple[np.ndarray, np.ndarray]:
-        """(U,) vertex index and (U,) part of every distinct (vertex, part) pair of the part meshes."""
-        pairs = np.unique(np.stack([self.triangles.ravel(), np.repeat(self.triangle_part, 3)], 1), axis=0)
-        return pairs[:, 0], pairs[:, 1]
+        """(U,) vertex index and (U,) part of the (vertex, part) pairs that can bound a posed part: those on the
+        convex hull of the part's rest vertices of some shape. A pose moves a part by an affine map, which keeps
+        the extremes of the part among the images of these vertices, so boxes of posed bodies need no others."""
+        vertex, part = [], []
+        for index in np.unique(self.triangle_part):
+            used = np.unique(self.triangles[self.triangle_part == index])
+            hull = np.unique(np.concatenate([ConvexHull(rest[used]).vertices for rest in self.rest_vertices]))
+            vertex.append(used[hull])
+            part.append(np.full(len(hull), index))
+        return np.concatenate(vertex), np.concatenate(part)
 
     @functools.cached_property
     def rest_part_vertices(self) -> np.ndarray:

@@ -5,8 +5,9 @@ How a frame is cast:
    once and the hits are reused by every frame of that viewpoint (the world does not move).
 2. People are not re-meshed per frame. Every body part of every bank shape sits, in its rest pose, in one shared
    RaycastingScene (the "body scene", each part at its own far-apart offset). The rays that can reach a person
-   come from an angular index of the rays (azimuth bins, elevation sorted within each): those in the angular
-   range of a cylinder around the person's path during the frame. Each is moved into the person's body frame at
+   come from an angular index of the rays (time slices of SLICE_S, azimuth bins within each, elevation sorted
+   within each bin): per slice, those in the angular range of a cylinder around the person's path while the
+   rays of that slice see it. Each is moved into the person's body frame at
    the ray's own pulse time (trajectory), culled with boxes bounding the body and its parts over all poses, moved
    into the rest frame of each remaining part with the part's pose at that time (gait), which makes motion within
    the frame exact per pulse (time slicing with time_step_s > 0 quantises pulse times instead, for comparison),
@@ -37,6 +38,7 @@ BODY_REACH_M = 0.75  # horizontal reach of a body around its trajectory point (s
 BODY_HEIGHT_M = 2.0  # height of the bounding volume of a body
 PART_SPACING_M = 300.0  # distance between body parts in the body scene: more than twice any cast range
 MAX_BODY_RANGE_M = 120.0  # hits on a body part farther than this are foreign parts of the body scene
+SLICE_S = 0.04  # s: the angular index is split into time slices of this length (a person moves < 8 cm in one)
 AZIMUTH_BINS = 720  # bins of the angular ray index (0.5 deg)
 AZIMUTH_BIN_RAD = 2 * np.pi / AZIMUTH_BINS
 EDGE_ASYMMETRY_M = 0.05  # opposite sub-rays whose range deviations cancel to within this see one smooth surface
@@ -184,26 +186,40 @@ class Caster:
         self.static_ray_reflectivity = np.where(hit, self.static_reflectivity[np.where(hit, primitive, 0)], 0.0)
         self.static_edge_range = (self._edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
                                   else None)
-        # angular index: rays sorted by azimuth bin, then elevation; key = bin + 0.5 + elevation / 4
+        # angular index: rays sorted by time slice, azimuth bin, then elevation;
+        # key = slice * AZIMUTH_BINS + azimuth bin + 0.5 + elevation / 4
+        ray_slice = np.minimum(np.floor(self.time_offset / SLICE_S), np.ceil(frame_period_s / SLICE_S) - 1)
+        self.slice_times = np.array([[self.time_offset[ray_slice == j].min(), self.time_offset[ray_slice == j].max()]
+                                     for j in range(int(ray_slice.max()) + 1)]).T  # (2, J) first and last pulse
         azimuth = np.arctan2(self.directions[:, 1], self.directions[:, 0])
         azimuth_bin = np.minimum(np.floor((azimuth + np.pi) / AZIMUTH_BIN_RAD), AZIMUTH_BINS - 1)
-        key = azimuth_bin + 0.5 + np.arcsin(np.clip(self.directions[:, 2], -1.0, 1.0)) / 4
+        key = ray_slice * AZIMUTH_BINS + azimuth_bin + 0.5 + np.arcsin(np.clip(self.directions[:, 2], -1.0, 1.0)) / 4
         self.angular_order = np.argsort(key, kind="stable")
         self.angular_key = key[self.angular_order]
 
-    def candidate_pairs(self, people: TrajectoryStack) -> tuple[np.ndarray, np.ndarray]:
-        """Ray (n,) and person (n,) indices of the rays that can reach each person during the frame: those in the
-        azimuth and elevation range of a vertical cylinder around the person's path."""
-        during = (people.times >= 0.0) & (people.times <= self.frame_period_s)
-        x, y = people.samples[0][:, during], people.samples[1][:, during]  # (k, F) path during the frame
-        centre_x, centre_y = 0.5 * (x.min(1) + x.max(1)), 0.5 * (y.min(1) + y.max(1))
-        reach = np.hypot(x - centre_x[:, None], y - centre_y[:, None]).max(1) + BODY_REACH_M
+    def candidate_pairs(self, people: TrajectoryStack, time_step_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Ray (n,) and person (n,) indices of the rays that can reach each person: per time slice of the pattern,
+        those in the azimuth and elevation range of a vertical cylinder around the person's path while the rays
+        of that slice see it (pulse times quantised by time_step_s as in `cast_frame`)."""
+        # the trajectory samples bracketing each slice's pose times, (k, J, m) paths
+        times = people.times
+        sample_dt = times[1] - times[0]
+        pose_times = _pose_time(self.slice_times, time_step_s)
+        first = np.clip(np.floor((pose_times[0] - times[0]) / sample_dt).astype(np.int64), 0, len(times) - 1)
+        last = np.clip(np.ceil((pose_times[1] - times[0]) / sample_dt).astype(np.int64), 0, len(times) - 1)
+        samples = np.minimum(first[:, None] + np.arange((last - first).max() + 1), last[:, None])
+        x, y = people.samples[0][:, samples], people.samples[1][:, samples]
+        slices = len(first)
+        # one cylinder per (person, slice), flattened
+        centre_x, centre_y = (0.5 * (x.min(2) + x.max(2))).ravel(), (0.5 * (y.min(2) + y.max(2))).ravel()
+        reach = np.hypot(x - centre_x.reshape(-1, slices, 1), y - centre_y.reshape(-1, slices, 1)).max(2).ravel()
+        reach += BODY_REACH_M
         distance = np.hypot(centre_x - self.origin[0], centre_y - self.origin[1])
         outside = distance > reach  # else the sensor is above the cylinder: all azimuths, all elevations
         # elevation range: extremes of atan2(z - height, horizontal distance) at the cylinder's corners
         closest = np.where(outside, distance - reach, 1e-9)
         corners = np.arctan2(np.array([0.0, BODY_HEIGHT_M])[:, None, None] - self.origin[2],
-                             np.stack([closest, distance + reach]))  # (z, distance, k)
+                             np.stack([closest, distance + reach]))  # (z, distance, k * J)
         low = np.where(outside, corners.min((0, 1)), -np.pi / 2)
         high = np.where(outside, corners.max((0, 1)), np.pi / 2)
         half_width = np.where(outside, np.arcsin(reach / np.maximum(distance, reach)), np.pi)
@@ -211,12 +227,12 @@ class Caster:
         first_bin = np.floor((middle - half_width + np.pi) / AZIMUTH_BIN_RAD).astype(np.int64)
         last_bin = np.floor((middle + half_width + np.pi) / AZIMUTH_BIN_RAD).astype(np.int64)
         bins = np.minimum(last_bin - first_bin + 1, AZIMUTH_BINS)
-        # one run of the angular index per (person, azimuth bin)
-        person = np.repeat(np.arange(len(x)), bins)
-        azimuth_bin = _runs(first_bin, bins) % AZIMUTH_BINS
-        start = np.searchsorted(self.angular_key, azimuth_bin + 0.5 + low[person] / 4)
-        count = np.searchsorted(self.angular_key, azimuth_bin + 0.5 + high[person] / 4, side="right") - start
-        return self.angular_order[_runs(start, count)], np.repeat(person, count)
+        # one run of the angular index per (person, slice, azimuth bin)
+        cylinder = np.repeat(np.arange(len(centre_x)), bins)
+        base = (cylinder % slices) * AZIMUTH_BINS + _runs(first_bin, bins) % AZIMUTH_BINS + 0.5
+        start = np.searchsorted(self.angular_key, base + low[cylinder] / 4)
+        count = np.searchsorted(self.angular_key, base + high[cylinder] / 4, side="right") - start
+        return self.angular_order[_runs(start, count)], np.repeat(cylinder // slices, count)
 
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
                    phase_steps: int | None = None) -> FrameHits:
@@ -273,10 +289,8 @@ class Caster:
         bodies = body_scene(self.bank, self.lod)
         parts, gait = len(self.bank.part_names), self.bank.gait_phases
         trajectories = TrajectoryStack.of([p.trajectory for p in people])
-        ray, person = self.candidate_pairs(trajectories)
-        time_of_ray = self.time_offset[ray]
-        if time_step_s > 0:
-            time_of_ray = (np.floor(time_of_ray / time_step_s) + 0.5) * time_step_s
+        ray, person = self.candidate_pairs(trajectories, time_step_s)
+        time_of_ray = _pose_time(self.time_offset.take(ray), time_step_s)
         # each ray in its person's body frame at its pulse time (x_world = yaw x_body + xy); keep those passing
         # through the box of the body in the poses blended at that time
         xy, heading, phase, walk = trajectories.state(person, time_of_ray)
@@ -336,6 +350,14 @@ class BodyHits:
     cos_incidence: np.ndarray
     reflectivity: np.ndarray
     cast_seconds: float
+
+
+def _pose_time(pulse_time: np.ndarray, time_step_s: float) -> np.ndarray:
+    """The times [s] at which pulses sent at `pulse_time` see the people: their own (time_step_s = 0), else the
+    middle of their slice of length time_step_s."""
+    if time_step_s > 0:
+        return (np.floor(pulse_time / time_step_s) + 0.5) * time_step_s
+    return pulse_time
 
 
 def _runs(start: np.ndarray, count: np.ndarray) -> np.ndarray:

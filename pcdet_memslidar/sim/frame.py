@@ -72,18 +72,18 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     seconds["cast_rays"] = hits.cast_seconds
     # sensor physics: noise, dropout, intensity
     start = time.perf_counter()
-    measured, intensity, valid = sensor.measure(hits.range, hits.cos_incidence, hits.reflectivity, rng,
+    pulse, measured, intensity = sensor.returns(hits.range, hits.cos_incidence, hits.reflectivity, rng,
                                                 hits.edge_range)
-    pulse = np.flatnonzero(valid)
-    points = np.empty((len(pulse), 4), dtype=np.float32)
-    for k in range(3):  # component by component: numpy loops run over the points
-        points[:, k] = caster.origin[k] + caster.direction_rows[k, pulse] * measured[pulse]
-    points[:, 3] = intensity[pulse]
-    time_offset = caster.time_offset[:caster.pulses][valid].astype(np.float32)
+    points = np.empty((4, len(pulse)), dtype=np.float32).T  # column-major: filled column by column
+    for k in range(3):
+        points[:, k] = caster.origin[k] + caster.direction_rows[k].take(pulse) * measured
+    points[:, 3] = intensity
+    time_offset = caster.time_offset.take(pulse).astype(np.float32)
     seconds["sensor"] = time.perf_counter() - start
     # labels from the simulator state
     start = time.perf_counter()
-    returned = np.bincount(hits.person[valid & (hits.person >= 0)], minlength=len(people))
+    returned = hits.person.take(pulse)
+    returned = np.bincount(returned[returned >= 0], minlength=len(people))
     hit = np.bincount(hits.person[hits.person >= 0], minlength=len(people))
     boxes, names, records = label_people(bank, lod, people, label_time_s, returned, hit, hits.unoccluded)
     seconds["labels"] = time.perf_counter() - start

@@ -5,6 +5,7 @@ any pulse time. Times are in s from the frame start, positions in m in the norma
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,11 @@ class Trajectory:
     heading: np.ndarray
     cycles: np.ndarray
     speed: np.ndarray
+
+    @functools.cached_property
+    def samples(self) -> np.ndarray:
+        """(5, n) x, y, heading, cycles and speed at the sample times."""
+        return np.stack([self.xy[:, 0], self.xy[:, 1], self.heading, self.cycles, self.speed])
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """At times t (m,) [s]: xy (m, 2), heading (m,), gait phase (m,) in cycles, walk weight (m,) in [0, 1]."""
@@ -48,11 +54,9 @@ class TrajectoryStack:
     @classmethod
     def of(cls, trajectories: list[Trajectory]) -> "TrajectoryStack":
         times = trajectories[0].times
-        if any(not np.array_equal(t.times, times) for t in trajectories[1:]):
+        if any(t.times is not times and not np.array_equal(t.times, times) for t in trajectories[1:]):
             raise ValueError("trajectories stacked together must share their sample times")
-        samples = np.stack([np.stack([t.xy[:, 0], t.xy[:, 1], t.heading, t.cycles, t.speed]) for t in trajectories],
-                           axis=1)
-        return cls(times, samples)
+        return cls(times, np.stack([t.samples for t in trajectories], axis=1))
 
     def state(self, person: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Of person (m,) at times t (m,) [s] (clamped to the sampled window), linearly interpolated: xy (m, 2),
@@ -84,6 +88,14 @@ def from_path(times: np.ndarray, xy: np.ndarray, heading: np.ndarray, stride_m: 
                       speed=np.gradient(distance, times))
 
 
+@functools.lru_cache(maxsize=None)
+def _sample_times(frame_period_s: float, margin_s: float) -> np.ndarray:
+    """(n,) read-only sample times [s] of a trajectory, one array shared by all trajectories of a frame."""
+    times = np.arange(-margin_s, frame_period_s + margin_s + SAMPLE_DT / 2, SAMPLE_DT)
+    times.flags.writeable = False
+    return times
+
+
 def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndarray, heading: float,
                     speed: float, stride_m: float, frame_period_s: float, margin_s: float = 2.0) -> Trajectory:
     """A trajectory of `behaviour` that passes `anchor_xy` (2,) [m] at mid-frame, heading about `heading` [rad]
@@ -95,7 +107,7 @@ def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndar
     """
     if behaviour not in BEHAVIOURS:
         raise ValueError(f"unknown behaviour '{behaviour}': choose one of {BEHAVIOURS}")
-    times = np.arange(-margin_s, frame_period_s + margin_s + SAMPLE_DT / 2, SAMPLE_DT)
+    times = _sample_times(frame_period_s, margin_s)
     centre = frame_period_s / 2
     event_time, event_length, turn, direction, spin = rng.uniform(
         [-1.0, 1.0, np.deg2rad(45), 0.0, 0.0], [frame_period_s + 1.0, 3.0, np.deg2rad(120), 1.0, 1.0])

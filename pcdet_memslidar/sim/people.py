@@ -66,7 +66,7 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
     behaviour_cdf = np.cumsum(np.asarray(weights) / np.sum(weights))  # drawn with one uniform, as Generator.choice
     behaviour_cdf /= behaviour_cdf[-1]
     people: list[Person] = []
-    frame = None
+    frame, placed = None, None  # mask of the sample times during the frame, (k, F, 2) paths of those placed
     for _ in range(MAX_TRIES):
         if len(people) >= count:
             break
@@ -90,24 +90,24 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
             trajectory = Trajectory(trajectory.times, trajectory.xy, trajectory.heading, trajectory.cycles + phase,
                                     trajectory.speed)
             members.append(Person(shape, trajectory, reflectivity, behaviour, group, vest))
-        if frame is None:
+        if placed is None:
             frame = (members[0].trajectory.times >= 0.0) & (members[0].trajectory.times <= frame_period_s)
-        if all(_is_free(m, people, scene, preset.min_separation_m, frame) for m in members):
+            placed = np.zeros((0, frame.sum(), 2))
+        paths = np.stack([m.trajectory.xy[frame] for m in members])
+        if all(_is_free(path, placed, scene, preset.min_separation_m) for path in paths):
             people.extend(members)
+            placed = np.concatenate([placed, paths])
     return people
 
 
-def _is_free(person: Person, others: list[Person], scene: Scene, separation_m: float, frame: np.ndarray) -> bool:
-    """True if `person` stays clear of obstacle footprints and of `others` during the frame."""
-    path = person.trajectory.xy[frame]
+def _is_free(path: np.ndarray, others: np.ndarray, scene: Scene, separation_m: float) -> bool:
+    """True if the path (F, 2) [m] of a person during the frame stays clear of obstacle footprints and of the paths
+    (k, F, 2) of others."""
     if len(scene.obstacles):
         low = scene.obstacles[:, :2] - BODY_RADIUS_M
         high = scene.obstacles[:, 2:] + BODY_RADIUS_M
         inside = ((path[:, None, :] > low[None]) & (path[:, None, :] < high[None])).all(axis=2)
         if inside.any():
             return False
-    for other in others:
-        gap = path - other.trajectory.xy[frame]
-        if np.hypot(gap[:, 0], gap[:, 1]).min() < separation_m:
-            return False
-    return True
+    gap = path - others
+    return not len(others) or bool(np.hypot(gap[..., 0], gap[..., 1]).min() >= separation_m)

@@ -68,40 +68,57 @@ class SensorModel:
     def measure(self, true_range: np.ndarray, cos_incidence: np.ndarray, reflectivity: np.ndarray,
                 rng: np.random.Generator, edge_range: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Simulate the echoes of P pulses.
+        """Simulate the echoes of P pulses (the arguments as for `returns`).
 
-        true_range (P,) [m], inf where the beam hits nothing; cos_incidence (P,) cosine between beam and surface
-        normal (sign ignored); reflectivity (P,) in [0, 1]; edge_range (P,) range of a second surface inside the
-        beam footprint, nan where there is none. The random numbers drawn depend only on P, so equal seeds give
-        equal results.
         Returns range (P,) float64 [m] (nan where not valid), intensity (P,) float32 integers 0-511 (0 where not
         valid), valid (P,) bool.
         """
+        pulse, range_m, intensity = self.returns(true_range, cos_incidence, reflectivity, rng, edge_range)
+        measured, values = np.full(len(true_range), np.nan), np.zeros(len(true_range), dtype=np.float32)
+        valid = np.zeros(len(true_range), dtype=bool)
+        measured[pulse], values[pulse], valid[pulse] = range_m, intensity, True
+        return measured, values, valid
+
+    def returns(self, true_range: np.ndarray, cos_incidence: np.ndarray, reflectivity: np.ndarray,
+                rng: np.random.Generator, edge_range: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The returns of P pulses.
+
+        true_range (P,) [m], inf where the beam hits nothing; cos_incidence (P,) cosine between beam and surface
+        normal (sign ignored); reflectivity (P,) in [0, 1]; edge_range (P,) range of a second surface inside the
+        beam footprint, nan where there is none. Draws, in this order, one uniform per mixed pixel, one standard
+        normal and one uniform per hit, and one standard normal per return (intensity jitter, 'reflectance' mode
+        only), so equal inputs and seeds give equal results.
+        Returns pulse (n,) int64 index of each pulse that returned, its range (n,) float64 [m] and its intensity
+        (n,) float32 (integers 0-511).
+        """
         true_range = np.asarray(true_range, dtype=np.float64)
-        count = true_range.shape[0]
-        cos_abs = np.abs(np.asarray(cos_incidence, dtype=np.float64))
-        reflectivity = np.clip(np.asarray(reflectivity, dtype=np.float64), 0.0, 1.0)
-        # one fixed set of draws per pulse keeps results independent of which branch a pulse takes
-        normal, scale_normal, uniform_drop, uniform_power, uniform_mix, jitter = (
-            rng.standard_normal(count), rng.standard_normal(count), rng.random(count), rng.random(count),
-            rng.random(count), rng.standard_normal(count))
-
-        hit = np.isfinite(true_range)
-        echo = np.where(hit, true_range, 0.0)
+        hit = np.flatnonzero(np.isfinite(true_range))
+        echo = true_range[hit]
         if edge_range is not None and self.mixed_pixel_gap_m > 0:
-            edge = np.asarray(edge_range, dtype=np.float64)
-            mixed = hit & np.isfinite(edge) & (np.abs(edge - echo) < self.mixed_pixel_gap_m)
-            echo = np.where(mixed, echo + uniform_mix * (np.where(mixed, edge, echo) - echo), echo)
-
+            edge = np.asarray(edge_range, dtype=np.float64)[hit]
+            mixed = np.flatnonzero(np.abs(edge - echo) < self.mixed_pixel_gap_m)  # nan (no edge) compares False
+            echo[mixed] += rng.random(len(mixed)) * (edge[mixed] - echo[mixed])
         sigma = self.range_sigma_m + self.range_sigma_per_m * echo
-        measured = echo * (1.0 + self.range_scale_sigma * scale_normal) + sigma * normal
-
-        valid = hit & (uniform_drop >= self.base_dropout)
-        valid &= uniform_power < self.detection_probability(echo, cos_abs, reflectivity)
-        valid &= (measured >= self.min_range_m) & (measured <= self.max_range_m)
-
-        intensity = self.intensity(measured, cos_abs, reflectivity, jitter)
-        return (np.where(valid, measured, np.nan), np.where(valid, intensity, 0.0).astype(np.float32), valid)
+        if self.range_scale_sigma > 0:  # additive and multiplicative error: independent Gaussians, sigmas add in
+            sigma = np.sqrt(np.square(sigma) + np.square(self.range_scale_sigma * echo))  # quadrature
+        measured = echo + sigma * rng.standard_normal(len(echo))
+        # a return needs to survive the base dropout and the detection threshold: one uniform decides both
+        detection = 1.0 - self.base_dropout
+        if self.power_threshold > 0 or self.intensity_mode == "reflectance":
+            cos_abs = np.abs(np.asarray(cos_incidence, dtype=np.float64)[hit])
+            reflectivity = np.clip(np.asarray(reflectivity, dtype=np.float64)[hit], 0.0, 1.0)
+        if self.power_threshold > 0:
+            detection = detection * self.detection_probability(echo, cos_abs, reflectivity)
+        returned = np.flatnonzero((rng.random(len(echo)) < detection) & (measured >= self.min_range_m)
+                                  & (measured <= self.max_range_m))
+        measured = measured[returned]
+        if self.intensity_mode == "carla":
+            intensity = self.intensity(measured)
+        else:
+            intensity = self.intensity(measured, cos_abs[returned], reflectivity[returned],
+                                       rng.standard_normal(len(returned)))
+        return hit[returned], measured, intensity.astype(np.float32)
 
     def detection_probability(self, range_m: np.ndarray, cos_abs: np.ndarray, reflectivity: np.ndarray
                               ) -> np.ndarray:
@@ -115,9 +132,10 @@ class SensorModel:
             return (margin >= 0).astype(np.float64)
         return 0.5 * (1.0 + np.tanh(margin / (2.0 * self.power_softness)))
 
-    def intensity(self, range_m: np.ndarray, cos_abs: np.ndarray, reflectivity: np.ndarray,
-                  jitter: np.ndarray) -> np.ndarray:
-        """(P,) float64 integer intensities 0-511 for echoes at range_m; jitter (P,) standard normal draws."""
+    def intensity(self, range_m: np.ndarray, cos_abs: np.ndarray | None = None,
+                  reflectivity: np.ndarray | None = None, jitter: np.ndarray | None = None) -> np.ndarray:
+        """(P,) float64 integer intensities 0-511 for echoes at range_m; cos_abs, reflectivity and jitter (P,)
+        standard normal draws are needed in 'reflectance' mode only."""
         if self.intensity_mode == "carla":
             value = INTENSITY_MAX * np.exp(-0.004 * range_m)
         else:

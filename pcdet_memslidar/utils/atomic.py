@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import shutil
 import tempfile
@@ -10,22 +11,34 @@ from typing import Iterator
 
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
+_TEMPORARY_NUMBER = itertools.count()
+
+
+def _create_temporary(path: Path) -> Path:
+    """Create an empty, new temporary file `.<name>.<pid>.<n>.tmp` beside `path` (creating missing folders), with
+    the permissions of any new file (0o666 less the umask)."""
+    while True:
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY_NUMBER)}.tmp")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:  # left behind by a killed process that had the same pid
+            continue
+        except FileNotFoundError:
+            path.parent.mkdir(parents=True, exist_ok=True)
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it onto `path`, else delete it."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = _create_temporary(path)
     try:
         yield tmp
-        os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes owner-only files; give the usual permissions
         os.replace(tmp, path)
-    finally:
+    except BaseException:
         tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_bytes(path: str | Path, data: bytes) -> None:

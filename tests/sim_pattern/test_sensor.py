@@ -68,6 +68,18 @@ def test_mixed_pixels_lie_between_the_two_surfaces():
     np.testing.assert_array_equal(measured[500:][valid[500:]], 8.0)  # too far apart to merge: centre surface
 
 
+def test_returns_are_the_valid_pulses_of_measure():
+    sensor = get_sensor("calibrated")
+    args = (np.where(np.arange(2000) % 7 == 0, np.inf, np.linspace(0.5, 90, 2000)), np.full(2000, 0.6),
+            np.full(2000, 0.2), np.random.default_rng(5), np.where(np.arange(2000) % 5 == 0, 30.0, np.nan))
+    measured, intensity, valid = sensor.measure(*args[:3], np.random.default_rng(5), args[4])
+    pulse, range_m, values = sensor.returns(*args)
+    np.testing.assert_array_equal(pulse, np.flatnonzero(valid))
+    np.testing.assert_array_equal(range_m, measured[valid])
+    np.testing.assert_array_equal(values, intensity[valid])
+    assert 0.3 < valid.mean() < 0.9 and values.dtype == np.float32
+
+
 def test_same_seed_same_result_and_unknown_preset():
     sensor = get_sensor("calibrated")
     args = (np.linspace(2, 30, 500), np.full(500, 0.7), np.full(500, 0.3))
