@@ -1,5 +1,5 @@
-"""Figures of the reproduction (PNG, matplotlib without pyplot): Fig. 3-style example frames, precision-recall
-curves of M1-M4, AP against inference time.
+"""Figures (PNG, matplotlib without pyplot): one frame with its boxes; and for the reproduction Fig. 3-style
+example frames, precision-recall curves of M1-M4, AP against inference time.
 
 Boxes are OpenPCDet LiDAR boxes (M, 7) [x, y, z_center, dx, dy, dz, heading] in the normalised ground frame
 (x forward, y left, z up, ground at z = 0); points (N, 3+) [x, y, z, ...] [m].
@@ -144,6 +144,31 @@ def view_window(gt: np.ndarray, margin: float = MARGIN_M, min_extent: float = 8.
     half = max(min_extent, *(high - low)) / 2
     centre = (low + high) / 2
     return centre[0] + np.array([-half, half]), centre[1] + np.array([-half, half])
+
+
+def plot_frame(path: str | Path, points: np.ndarray, gt_boxes: np.ndarray, title: str = "",
+               predictions: np.ndarray | None = None, max_range_m: float = 45.0) -> Path:
+    """A whole frame: bird's-eye view (top) and side view (bottom) of (N, 3+) points, (M, 7) ground-truth boxes
+    (blue) and optional (K, 7) predicted boxes (green); ground points drawn lighter."""
+    points = np.asarray(points)
+    points = points[np.hypot(points[:, 0], points[:, 1]) < max_range_m]
+    gt_boxes = np.asarray(gt_boxes, dtype=np.float64).reshape(-1, 7)
+    predictions = np.zeros((0, 7)) if predictions is None else np.asarray(predictions, dtype=np.float64).reshape(-1, 7)
+    ground = points[:, 2] < GROUND_Z
+    figure = Figure(figsize=(10, 11), layout="constrained")
+    bev, side = figure.subplots(2, 1, height_ratios=[3, 1])
+    for mask, color in ((ground, GROUND_COLOR), (~ground, POINT_COLOR)):
+        bev.scatter(points[mask, 0], points[mask, 1], s=0.2, c=color, linewidths=0)
+    side.scatter(points[:, 0], points[:, 2], s=0.2, c=POINT_COLOR, linewidths=0)
+    for boxes, color in ((gt_boxes, GT_COLOR), (predictions, PRED_COLOR)):
+        draw_boxes_bev(bev, boxes, color)
+        draw_boxes_side(side, boxes, color)
+    bev.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal",
+            title=f"{title}: {len(gt_boxes)} ground-truth boxes (blue)" + (f", {len(predictions)} predicted (green)"
+                                                                          if len(predictions) else ""))
+    side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", ylim=(SIDE_Z[0], max(SIDE_Z[1], points[:, 2].max(initial=0))),
+             aspect="equal", xlim=bev.get_xlim())
+    return _save(figure, path)
 
 
 def plot_example_frames(path: str | Path, frames: list[dict], predictions: dict[str, list[dict]],

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.evaluation.figures import (choose_example_frames, close_people, plot_ap_vs_time,
-                                                plot_example_frames, plot_pr_curves)
+                                                plot_example_frames, plot_frame, plot_pr_curves)
 from pcdet_memslidar.evaluation.report import (gain_over_reference, render_report, summarise_runs, table2,
                                                write_report)
 
@@ -118,7 +118,9 @@ def test_figures_are_written(tmp_path):
         plot_pr_curves(tmp_path / "pr.png", {"M1": {"3D": curve, "BEV": curve}}, {"M1": {"3D": 0.7, "BEV": None}}),
         plot_ap_vs_time(tmp_path / "t.png", [{"name": "M1", "ms_per_frame": 100.0, "ap": 0.5, "group": "run"},
                                              {"name": "x", "ms_per_frame": 50.0, "ap": None, "group": "bench"}]),
+        plot_frame(tmp_path / "f.png", points, boxes, "frame", predictions=boxes + 0.1),
+        plot_frame(tmp_path / "empty.png", np.zeros((0, 4)), np.zeros((0, 7)), "no points, no people"),
     ]
     for path in paths:
         assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["ex.png", "pr.png", "t.png"]  # no temporary files left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.png", "ex.png", "f.png", "pr.png", "t.png"]  # no temporary files left
