@@ -43,12 +43,11 @@ from pcdet_memslidar.evaluation.report import HEADLINE, summarise_runs, write_re
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network
-from pcdet_memslidar.runtime.checkpoint import list_checkpoints, load_params_from_file, load_params_with_optimizer
+from pcdet_memslidar.runtime.checkpoint import load_params_from_file
 from pcdet_memslidar.runtime.common import (available_cores, create_logger, get_device, set_random_seed,
                                             set_torch_threads)
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.train_loop import train_model
+from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
 from pcdet_memslidar.utils.atomic import write_text
@@ -130,13 +129,8 @@ def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger) -> Path:
     train_set, train_loader, sampler = build_dataloader(
         cfg.DATA_CONFIG, cfg.CLASS_NAMES, cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU, dist=False, workers=workers,
         seed=seed, logger=logger, training=True, total_epochs=epochs)
-    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=train_set).to(device)
-    optimizer = build_optimizer(model, cfg.OPTIMIZATION)
-    it = start_epoch = 0
-    if list_checkpoints(ckpt_dir):
-        it, start_epoch = load_params_with_optimizer(model, list_checkpoints(ckpt_dir)[-1], optimizer, logger)
-    model.train()
-    scheduler = build_scheduler(optimizer, len(train_loader), epochs, last_epoch=it - 1, optim_cfg=cfg.OPTIMIZATION)
+    model, optimizer, scheduler, it, start_epoch = prepare_training(cfg, train_set, ckpt_dir, device,
+                                                                    len(train_loader), epochs, logger)
     train_model(model, optimizer, train_loader, scheduler, cfg.OPTIMIZATION, start_epoch, epochs, it, rank=0,
                 tb_log=None, ckpt_save_dir=ckpt_dir, device=device, train_sampler=sampler, logger=logger)
     return final

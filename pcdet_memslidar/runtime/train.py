@@ -15,13 +15,11 @@ from tensorboardX import SummaryWriter
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.models import build_network
-from pcdet_memslidar.runtime.checkpoint import (checkpoint_epoch, list_checkpoints, load_params_from_file,
-                                                load_params_with_optimizer)
+from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints, load_params_from_file
 from pcdet_memslidar.runtime.common import create_logger, set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
 from pcdet_memslidar.runtime.experiment import add_common_arguments, ap_line, scalars, setup_experiment, test_split
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.train_loop import train_model
+from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 
 SEED = 666  # OpenPCDet's fixed seed (plus the rank)
 
@@ -68,28 +66,14 @@ def run(args: argparse.Namespace) -> int:
         dataset_cfg=cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES, batch_size=exp.batch_size, dist=exp.dist,
         workers=args.workers, logger=logger, training=True, seed=SEED if args.fix_random_seed else None,
         merge_all_iters_to_one_epoch=args.merge_all_iters_to_one_epoch, total_epochs=epochs)
-    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=train_set)
-    if args.sync_bn and exp.dist and exp.device.type == "cuda":
-        model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
-    model.to(exp.device)
-    optimizer = build_optimizer(model, cfg.OPTIMIZATION)
-
-    start_epoch = it = 0
-    if args.pretrained_model:
-        load_params_from_file(model, args.pretrained_model, logger)
-    resume_from = args.ckpt or (list_checkpoints(ckpt_dir)[-1] if list_checkpoints(ckpt_dir) else None)
-    if resume_from is not None:
-        it, start_epoch = load_params_with_optimizer(model, resume_from, optimizer, logger)
-        logger.info(f"resuming from {resume_from}: epoch {start_epoch}, iteration {it}")
-
-    model.train()
+    iters_per_epoch = (len(train_loader) // max(epochs, 1) if args.merge_all_iters_to_one_epoch
+                       else len(train_loader))
+    model, optimizer, lr_scheduler, it, start_epoch = prepare_training(
+        cfg, train_set, ckpt_dir, exp.device, iters_per_epoch, epochs, logger, resume_from=args.ckpt,
+        pretrained_model=args.pretrained_model, sync_bn=args.sync_bn and exp.dist and exp.device.type == "cuda")
     if exp.dist:
         device_ids = [exp.device.index] if exp.device.type == "cuda" else None
         model = torch.nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
-    iters_per_epoch = (len(train_loader) // max(epochs, 1) if args.merge_all_iters_to_one_epoch
-                       else len(train_loader))
-    lr_scheduler = build_scheduler(optimizer, iters_per_epoch, epochs, last_epoch=it - 1,
-                                   optim_cfg=cfg.OPTIMIZATION)
 
     logger.info(f"**********************Start training {cfg.EXP_GROUP_PATH}/{cfg.TAG}({args.extra_tag})"
                 f"**********************")

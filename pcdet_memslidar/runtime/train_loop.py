@@ -10,8 +10,33 @@ from pathlib import Path
 import torch
 import tqdm
 
-from pcdet_memslidar.models import load_data_to_device
-from pcdet_memslidar.runtime.checkpoint import checkpoint_state, list_checkpoints, save_checkpoint, unwrap
+from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, list_checkpoints, load_params_from_file,
+                                                load_params_with_optimizer, save_checkpoint, unwrap)
+from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+
+
+def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: int, epochs: int, logger,
+                     resume_from=None, pretrained_model=None, sync_bn: bool = False):
+    """cfg's detector on `device` in training mode, its optimizer and learning-rate scheduler, resumed from
+    `resume_from` (default: the newest checkpoint in ckpt_dir, if any). Returns (model, optimizer, lr_scheduler,
+    iteration, start_epoch)."""
+    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=train_set)
+    if sync_bn:
+        model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
+    model.to(device)
+    optimizer = build_optimizer(model, cfg.OPTIMIZATION)
+    if pretrained_model:
+        load_params_from_file(model, pretrained_model, logger)
+    checkpoints = list_checkpoints(ckpt_dir)
+    resume_from = resume_from or (checkpoints[-1] if checkpoints else None)
+    it = start_epoch = 0
+    if resume_from is not None:
+        it, start_epoch = load_params_with_optimizer(model, resume_from, optimizer, logger)
+        logger.info(f"resuming from {resume_from}: epoch {start_epoch}, iteration {it}")
+    model.train()
+    lr_scheduler = build_scheduler(optimizer, iters_per_epoch, epochs, last_epoch=it - 1, optim_cfg=cfg.OPTIMIZATION)
+    return model, optimizer, lr_scheduler, it, start_epoch
 
 
 def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: float, device,
