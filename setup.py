@@ -19,6 +19,7 @@ setup(
     install_requires=[
         "torch>=2.1",  # install torch==2.13.0 (CPU wheel) first: see run.sh
         "numpy>=1.24",
+        "numba>=0.60",  # the simulator's per-ray loops (sim/body_rays.py)
         "spconv>=2.3.6",
         "easydict>=1.10",
         "pyyaml>=6.0",

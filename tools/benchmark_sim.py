@@ -1,13 +1,16 @@
 """Benchmark the simulator: speed per domain and the speed-vs-error trade-off of mesh detail and time handling.
 
-    python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2]
+    python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2] [--where /dev/shm]
 
 Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after
-building every viewpoint's caster and one warm-up frame: frames/s of whole frames (people, casting, sensor,
-labels, writing the KITTI files), rays/s, and the ratio of the whole-frame time to the pure ray-casting time of
-the same rays (all rays of the frame cast once against one prebuilt Open3D scene holding the static world and
-every person posed at mid-frame); then the wall time of `simulate_dataset` with --workers processes, start-up
-included; then the ms per frame of each stage. Runs with glibc keeping freed memory, as simulate_dataset does.
+building every viewpoint's caster and one warm-up frame: frames/s of whole frames as `simulate_dataset` makes
+them in one process (people, casting, sensor, labels, writing the KITTI files, ImageSets at the end), rays/s, and
+the ratio of the whole-frame time to the pure ray-casting time of the same rays (all rays of the frame cast once,
+on all cores, against one prebuilt Open3D scene holding the static world and every person posed at mid-frame);
+then frames/s of `simulate_dataset` with --workers processes, start-up included, and the whole/pure ratio of
+such processes once they have built their casters; then the ms per frame of each stage, one at a time
+(in one process, `simulate_dataset` makes two frames at a time in threads). Runs with glibc keeping freed memory,
+as simulate_dataset does; writes into memory (/dev/shm) unless --where names another folder.
 Part 2: for the frames of the paper target, every body detail level x time handling against the finest setting
 ('full' mesh, each pulse at its own time): displacement of the pulses that hit a person in both, share of
 person pulses that hit a person in only one, and time per frame.
@@ -18,6 +21,8 @@ import argparse
 import dataclasses
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -82,24 +87,52 @@ def frame_people(preset, seed, index, bank):
 STAGES = ("people", "casting", "cast_rays", "sensor", "labels", "writing")
 
 
-def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
-    """Frames/s, rays/s, whole/pure ratio and ms per frame of each stage of `frames` frames of `preset`."""
+def _warm_up(preset) -> None:
+    """Build the casters of every viewpoint of `preset` in this process and make one frame."""
+    keep_freed_memory()
+    for viewpoint in preset.viewpoints:
+        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod, 1)
+    simulate_frame(preset, 0, 10_000, threads=1)
+
+
+def _make_frame(args) -> None:
+    preset, seed, index, layout, fingerprint = args
+    write_simulated_frame(layout, index, simulate_frame(preset, seed, index, threads=1), fingerprint)
+
+
+def started_seconds(preset, frames: int, workers: int, layout: KittiLayout, fingerprint: str, seed: int) -> float:
+    """Wall time [s] of `frames` frames made and written by `workers` processes (as simulate_dataset's) that
+    have already built their casters."""
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_warm_up,
+                             initargs=(preset,)) as pool:
+        list(pool.map(time.sleep, [1.0] * workers))  # every process started and warmed up
+        start = time.perf_counter()
+        list(pool.map(_make_frame, [(preset, seed, index, layout, fingerprint) for index in range(frames)]))
+        return time.perf_counter() - start
+
+
+def speed(preset, frames: int, workers: int, where: str | None = None, seed: int = 0) -> dict:
+    """Frames/s, rays/s, whole/pure ratio and ms per frame of each stage of `frames` frames of `preset`, written
+    into a temporary folder in `where` (None: the system's temporary folder)."""
     bank = load_body_bank()
     for viewpoint in preset.viewpoints:  # warm-up: static worlds built and cast once
         get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
     simulate_frame(preset, seed, 10_000)
-    fingerprint = domain_settings(preset, seed)["fingerprint"]
-    with tempfile.TemporaryDirectory() as folder:
-        layout = KittiLayout(folder)
-        whole, pure, rays, people_count = 0.0, 0.0, 0, 0
+    with tempfile.TemporaryDirectory(dir=where) as folder:
+        # whole frames as `memslidar simulate` makes them in one process (writing overlaps the next frame)
+        start = time.perf_counter()
+        simulate_dataset(preset, frames, Path(folder) / "whole", seed=seed, workers=1, progress=False)
+        whole = time.perf_counter() - start
+        # the same frames stage by stage, and the pure cast of their rays
+        fingerprint = domain_settings(preset, seed)["fingerprint"]
+        layout = KittiLayout(Path(folder) / "stages")
+        pure, rays, people_count = 0.0, 0, 0
         stages = dict.fromkeys(STAGES, 0.0)
         for index in range(frames):
-            start = time.perf_counter()
             frame = simulate_frame(preset, seed, index)
-            written = time.perf_counter()
+            start = time.perf_counter()
             write_simulated_frame(layout, index, frame, fingerprint)
-            whole += time.perf_counter() - start
-            stages["writing"] += time.perf_counter() - written
+            stages["writing"] += time.perf_counter() - start
             for stage, seconds in frame.seconds.items():
                 stages[stage] += seconds
             viewpoint, people = frame_people(preset, seed, index, bank)
@@ -107,12 +140,16 @@ def speed(preset, frames: int, workers: int, seed: int = 0) -> dict:
             pure += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod)
             rays += len(caster.directions)
             people_count += len(people)
+        # in `workers` processes: start-up included, and per frame once every process has its casters
         start = time.perf_counter()
         simulate_dataset(preset, frames, Path(folder) / "parallel", seed=seed, workers=workers, progress=False)
         parallel = time.perf_counter() - start
+        started = started_seconds(preset, frames, workers, KittiLayout(Path(folder) / "started"), fingerprint, seed)
     return dict(fps=frames / whole, rays_per_s=rays / whole, ratio=whole / pure,
                 people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / parallel,
-                whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames, **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
+                parallel_ratio=started / pure,
+                whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames,
+                **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
 
 
 def errors(preset, frames: int, seed: int = 0) -> list[tuple]:
@@ -158,16 +195,21 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=20, help="frames per domain for the speed table")
     parser.add_argument("--error-frames", type=int, default=6, help="frames for the speed-vs-error table")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--where", default="/dev/shm" if Path("/dev/shm").is_dir() else None,
+                        help="folder to write the frames into (default: /dev/shm, memory, so that the state of "
+                             "the disk does not enter the timings; give a disk folder to include it)")
     args = parser.parse_args()
+    print(f"writing into {args.where or tempfile.gettempdir()}")
     keep_freed_memory()  # as simulate_dataset does
     target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))
+    workers = f"x{args.workers} workers"
     print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure cast':>16s} "
-          f"{'frames/s x' + str(args.workers) + ' workers':>22s}")
+          f"{'frames/s ' + workers:>19s} {'whole/pure ' + workers:>21s}")
     results = {}
     for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
-        r = results[preset.name] = speed(preset, args.frames, args.workers)
+        r = results[preset.name] = speed(preset, args.frames, args.workers, args.where)
         print(f"{preset.name:34s} {r['people_per_frame']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} "
-              f"{r['rays_per_s'] / 1e6:8.2f} {r['ratio']:16.2f} {r['parallel_fps']:22.1f}")
+              f"{r['rays_per_s'] / 1e6:8.2f} {r['ratio']:16.2f} {r['parallel_fps']:19.1f} {r['parallel_ratio']:21.2f}")
     print(f"\nms per frame ('casting' includes 'cast_rays', the time inside Open3D; 'pure cast': all rays of the "
           f"frame against one prebuilt scene)\n{'domain':34s} " + " ".join(f"{s:>9s}" for s in STAGES)
           + f" {'whole':>9s} {'pure cast':>9s}")

@@ -71,7 +71,7 @@ def read_points(path: str | Path) -> np.ndarray:
 def write_points(path: str | Path, points: np.ndarray) -> None:
     """Write (N, 4) [x, y, z, intensity] points as little-endian float32 to a velodyne .bin file (atomic)."""
     points = _check_points(path, points)
-    write_bytes(path, np.ascontiguousarray(points, dtype="<f4").tobytes())
+    write_bytes(path, np.ascontiguousarray(points, dtype="<f4"))
 
 
 # ---------------------------------------------------------------------------------------------------- labels

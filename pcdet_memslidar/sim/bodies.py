@@ -14,6 +14,7 @@ import functools
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 from scipy.spatial import ConvexHull
 
@@ -47,8 +48,8 @@ class BodyMesh:
 
     @functools.cached_property
     def rest_part_vertices(self) -> np.ndarray:
-        """(3, S, U) rest positions of the part_vertices of each shape, component-major."""
-        return np.ascontiguousarray(self.rest_vertices[:, self.part_vertices[0]].transpose(2, 0, 1))
+        """(S, U, 3) float64 rest positions of the part_vertices of each shape."""
+        return self.rest_vertices[:, self.part_vertices[0]].astype(np.float64)
 
 
 @dataclass(frozen=True, eq=False)  # hashed by identity: body scenes are cached per bank
@@ -116,14 +117,29 @@ class BodyBank:
         walking = (1.0 - blend) * pose(lower) + blend * pose((lower + 1) % self.gait_phases)
         return weight * walking + (1.0 - weight) * pose(np.full_like(lower, self.gait_phases))
 
-    def posed_vertices(self, lod: str, shape: np.ndarray, transforms: np.ndarray) -> np.ndarray:
-        """(3, n, U) vertices (component-major) of bodies `shape` (n,) posed by their part transforms
-        (12, n, parts) (as `part_transforms` returns them), in the body frame."""
+    def posed_boxes(self, lod: str, shape: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+        """(n, 6) axis-aligned boxes [low xyz, high xyz] in the body frame of bodies `shape` (n,) posed by their
+        part transforms (12, n, parts) (as `part_transforms` returns them)."""
         mesh = self.meshes[lod]
-        rest = mesh.rest_part_vertices.take(shape, axis=1)  # (3, n, U)
-        t = transforms.take(mesh.part_vertices[1], axis=2)  # (12, n, U)
-        return np.stack([t[4 * i] * rest[0] + t[4 * i + 1] * rest[1] + t[4 * i + 2] * rest[2] + t[4 * i + 3]
-                         for i in range(3)])
+        return _posed_boxes(mesh.rest_part_vertices, mesh.part_vertices[1], np.asarray(shape, dtype=np.int64),
+                            np.ascontiguousarray(transforms.transpose(1, 2, 0)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _posed_boxes(rest, vertex_part, shape, transforms):
+    """(n, 6) boxes of the vertices rest (S, U, 3) of parts vertex_part (U,) of bodies shape (n,) moved by their
+    part transforms (n, parts, 12)."""
+    boxes = np.empty((len(shape), 6))
+    for i in range(len(shape)):
+        boxes[i, :3], boxes[i, 3:] = np.inf, -np.inf
+        for u in range(rest.shape[1]):
+            t = transforms[i, vertex_part[u]]
+            x, y, z = rest[shape[i], u, 0], rest[shape[i], u, 1], rest[shape[i], u, 2]
+            for axis in range(3):
+                value = t[4 * axis] * x + t[4 * axis + 1] * y + t[4 * axis + 2] * z + t[4 * axis + 3]
+                boxes[i, axis] = min(boxes[i, axis], value)
+                boxes[i, axis + 3] = max(boxes[i, axis + 3], value)
+    return boxes
 
 
 @functools.lru_cache(maxsize=None)

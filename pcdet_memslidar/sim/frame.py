@@ -6,6 +6,7 @@ SeedSequence, so a frame is the same whichever worker or shard makes it.
 from __future__ import annotations
 
 import functools
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -37,6 +38,9 @@ class Frame:
     seconds: dict = field(default_factory=dict)
 
 
+_CASTER_LOCK = threading.Lock()  # frames may be made in several threads (see writer.simulate_dataset)
+
+
 def frame_rng(seed: int, index: int) -> np.random.Generator:
     """The generator of frame `index` of a dataset with seed `seed`."""
     return np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(index,)))
@@ -44,8 +48,9 @@ def frame_rng(seed: int, index: int) -> np.random.Generator:
 
 def get_caster(scene_name: str, mount: Mount, pattern_name: str, sensor_name: str, lod: str,
                threads: int = 0) -> Caster:
-    """The caster of one viewpoint, built once per process (the static world is cast here)."""
-    return _cached_caster(scene_name, mount, pattern_name, sensor_name, lod, threads)
+    """The caster of one viewpoint, built once per process (the static world is cast here), by one thread."""
+    with _CASTER_LOCK:
+        return _cached_caster(scene_name, mount, pattern_name, sensor_name, lod, threads)
 
 
 @functools.lru_cache(maxsize=16)  # called with all arguments positional: one cache entry per viewpoint
@@ -74,7 +79,7 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     start = time.perf_counter()
     pulse, measured, intensity = sensor.returns(hits.range, hits.cos_incidence, hits.reflectivity, rng,
                                                 hits.edge_range)
-    points = np.empty((4, len(pulse)), dtype=np.float32).T  # column-major: filled column by column
+    points = np.empty((len(pulse), 4), dtype=np.float32)
     for k in range(3):
         points[:, k] = caster.origin[k] + caster.direction_rows[k].take(pulse) * measured
     points[:, 3] = intensity

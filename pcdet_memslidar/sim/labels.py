@@ -8,6 +8,8 @@ pulses that would hit it if nothing else were there but hit something nearer.
 """
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 
 from pcdet_memslidar.sim.bodies import BodyBank
@@ -27,8 +29,8 @@ def person_boxes(bank: BodyBank, lod: str, people: list[Person], time_s: float) 
     xy, heading, phase, walk = TrajectoryStack.of([p.trajectory for p in people]).state(
         np.arange(count), np.full(count, float(time_s)))
     shape = np.array([p.shape for p in people])
-    vertices = bank.posed_vertices(lod, shape, bank.part_transforms(shape, phase, walk))
-    low, high = vertices.min(2).T, vertices.max(2).T
+    boxes = bank.posed_boxes(lod, shape, bank.part_transforms(shape, phase, walk))
+    low, high = boxes[:, :3], boxes[:, 3:]
     low[:, 2] = 0.0  # people stand on the flat ground; blended gait poses may float up to ~1 cm above it
     centre = 0.5 * (low + high)
     c, s = np.cos(heading), np.sin(heading)
@@ -40,7 +42,7 @@ def person_boxes(bank: BodyBank, lod: str, people: list[Person], time_s: float) 
 
 def occlusion_level(occluded_share: float) -> int:
     """KITTI occlusion level: 0 fully visible, 1 partly occluded, 2 largely occluded."""
-    return int(np.searchsorted(OCCLUSION_LEVELS, occluded_share, side="right"))
+    return bisect.bisect_right(OCCLUSION_LEVELS, occluded_share)
 
 
 def label_people(bank: BodyBank, lod: str, people: list[Person], time_s: float, points_per_person: np.ndarray,
@@ -58,7 +60,7 @@ def label_people(bank: BodyBank, lod: str, people: list[Person], time_s: float, 
         labelled = visible >= MIN_POINTS
         if labelled:
             boxes.append(box)
-        records.append(dict(box=[round(float(v), 6) for v in box], num_points=visible, labelled=labelled,
+        records.append(dict(box=[round(v, 6) for v in box.tolist()], num_points=visible, labelled=labelled,
                             occluded_share=round(share, 4), occlusion_level=occlusion_level(share),
                             shape=person.shape, sex=bank.shape_sex[person.shape],
                             stature_m=float(bank.shape_stature_m[person.shape]),

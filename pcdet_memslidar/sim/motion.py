@@ -17,19 +17,28 @@ BEHAVIOURS = ("walk", "turn", "stop_and_go", "stand")
 
 @dataclass(frozen=True)
 class Trajectory:
-    """times (n,) [s] evenly spaced; xy (n, 2) [m]; heading (n,) [rad] unwrapped, direction of travel (facing when
-    standing); cycles (n,) gait cycles walked so far; speed (n,) [m/s]."""
+    """times (n,) [s] evenly spaced; samples (5, n): x, y [m], heading [rad] unwrapped, direction of travel (facing
+    when standing), gait cycles walked so far and speed [m/s] at those times (as one row of a TrajectoryStack)."""
 
     times: np.ndarray
-    xy: np.ndarray
-    heading: np.ndarray
-    cycles: np.ndarray
-    speed: np.ndarray
+    samples: np.ndarray
 
-    @functools.cached_property
-    def samples(self) -> np.ndarray:
-        """(5, n) x, y, heading, cycles and speed at the sample times."""
-        return np.stack([self.xy[:, 0], self.xy[:, 1], self.heading, self.cycles, self.speed])
+    @property
+    def xy(self) -> np.ndarray:
+        """(n, 2) [m]"""
+        return self.samples[:2].T
+
+    @property
+    def heading(self) -> np.ndarray:
+        return self.samples[2]
+
+    @property
+    def cycles(self) -> np.ndarray:
+        return self.samples[3]
+
+    @property
+    def speed(self) -> np.ndarray:
+        return self.samples[4]
 
     def state(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """At times t (m,) [s]: xy (m, 2), heading (m,), gait phase (m,) in cycles, walk weight (m,) in [0, 1]."""
@@ -38,8 +47,7 @@ class Trajectory:
 
     def offset(self, lateral_m: float, stride_m: float) -> "Trajectory":
         """The trajectory of a companion walking `lateral_m` to the left (negative: right), same timing."""
-        normal = np.stack([-np.sin(self.heading), np.cos(self.heading)], 1)
-        return from_path(self.times, self.xy + lateral_m * normal, self.heading, stride_m)
+        return TrajectoryStack.of([self]).offset(np.array([lateral_m]), np.array([stride_m])).trajectory(0)
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,27 @@ class TrajectoryStack:
         if any(t.times is not times and not np.array_equal(t.times, times) for t in trajectories[1:]):
             raise ValueError("trajectories stacked together must share their sample times")
         return cls(times, np.stack([t.samples for t in trajectories], axis=1))
+
+    @classmethod
+    def along_paths(cls, times: np.ndarray, xy: np.ndarray, heading: np.ndarray,
+                    stride_m: np.ndarray) -> "TrajectoryStack":
+        """k people along sampled positions xy (2, k, n) [m] with heading (k, n) [rad]: speed and gait cycles (of
+        stride_m (k,) [m]) from the distance walked."""
+        step = np.hypot(*np.diff(xy))  # (k, n - 1) [m] walked between samples
+        walked = step @ _walked(len(times))
+        distance, speed = walked[:, :len(times)], walked[:, len(times):] / (times[1] - times[0])
+        return cls(times, np.stack([xy[0], xy[1], heading, distance / stride_m[:, None], speed]))
+
+    def trajectory(self, person: int) -> Trajectory:
+        """The trajectory of one person (a view into the table)."""
+        return Trajectory(self.times, self.samples[:, person])
+
+    def offset(self, lateral_m: np.ndarray, stride_m: np.ndarray) -> "TrajectoryStack":
+        """Companions walking lateral_m (k,) [m] to the left (negative: right) of the k people, same timing, with
+        gait cycles of stride_m (k,) [m]."""
+        heading = self.samples[2]
+        normal = np.stack([-np.sin(heading), np.cos(heading)])
+        return self.along_paths(self.times, self.samples[:2] + lateral_m[:, None] * normal, heading, stride_m)
 
     def state(self, person: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Of person (m,) at times t (m,) [s] (clamped to the sampled window), linearly interpolated: xy (m, 2),
@@ -76,16 +105,9 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
     return x * x * (3.0 - 2.0 * x)
 
 
-def _distance_walked(xy: np.ndarray) -> np.ndarray:
-    """(n,) length [m] of the path through the positions xy (n, 2) up to each of them."""
-    return np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1])))])
-
-
 def from_path(times: np.ndarray, xy: np.ndarray, heading: np.ndarray, stride_m: float) -> Trajectory:
     """Trajectory along sampled positions xy (n, 2): speed and gait cycles from the distance walked."""
-    distance = _distance_walked(xy)
-    return Trajectory(times=times, xy=xy, heading=heading, cycles=distance / stride_m,
-                      speed=np.gradient(distance, times))
+    return TrajectoryStack.along_paths(times, xy.T[:, None], heading[None], np.array([stride_m])).trajectory(0)
 
 
 @functools.lru_cache(maxsize=None)
@@ -96,39 +118,89 @@ def _sample_times(frame_period_s: float, margin_s: float) -> np.ndarray:
     return times
 
 
-def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndarray, heading: float,
-                    speed: float, stride_m: float, frame_period_s: float, margin_s: float = 2.0) -> Trajectory:
-    """A trajectory of `behaviour` that passes `anchor_xy` (2,) [m] at mid-frame, heading about `heading` [rad]
-    (turns are centred on it).
+@functools.lru_cache(maxsize=None)
+def _walked(n: int) -> np.ndarray:
+    """(n - 1, 2 n) matrix m taking the steps (..., n - 1) [m] between n samples, as steps @ m, to the distance
+    walked up to each sample and to its central differences (one-sided at the ends, as np.gradient) times the
+    sample spacing."""
+    step = np.arange(n - 1)
+    walked = np.zeros((n - 1, 2 * n))
+    walked[:, :n] = np.triu(np.ones((n - 1, n)), 1)
+    walked[step, n + step] = walked[step, n + step + 1] = 0.5
+    walked[0, n] = walked[-1, -1] = 1.0
+    walked.flags.writeable = False
+    return walked
 
-    walk: constant speed and heading. turn: a turn of 45-120 deg within 1-2 s somewhere in the window.
+
+@functools.lru_cache(maxsize=None)
+def _integrals(frame_period_s: float, margin_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(n, n) matrices m that integrate rates (..., n) given at the sample times (trapezoidal rule) as rates @ m:
+    from the window start, and from mid-frame (interpolated between the samples around it)."""
+    times = _sample_times(frame_period_s, margin_s)
+    from_start = np.triu(np.full((len(times), len(times)), SAMPLE_DT))  # [j, i]: weight of rate j in integral i
+    from_start[np.diag_indices(len(times))] -= SAMPLE_DT / 2
+    from_start[0] -= SAMPLE_DT / 2
+    j = int(np.searchsorted(times, frame_period_s / 2, side="right")) - 1
+    weight = (frame_period_s / 2 - times[j]) / (times[j + 1] - times[j])
+    from_centre = from_start - (from_start[:, j] + weight * (from_start[:, j + 1] - from_start[:, j]))[:, None]
+    from_start.flags.writeable = from_centre.flags.writeable = False
+    return from_start, from_centre
+
+
+@functools.lru_cache(maxsize=None)
+def _event_range(frame_period_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lower bounds (5,) and widths (5,) of the uniform event draws: time [s], length [s], turn [rad], turn
+    direction and spin (< 0.5: left, spinning)."""
+    low = np.array([-1.0, 1.0, np.deg2rad(45), 0.0, 0.0])
+    high = np.array([frame_period_s + 1.0, 3.0, np.deg2rad(120), 1.0, 1.0])
+    return low, high - low
+
+
+def make_trajectories(behaviour: np.ndarray, events: np.ndarray, anchor_xy: np.ndarray, heading: np.ndarray,
+                      speed: np.ndarray, stride_m: np.ndarray, frame_period_s: float,
+                      margin_s: float = 2.0) -> TrajectoryStack:
+    """k trajectories sampled from `margin_s` before to `margin_s` after the frame: person i does behaviour[i] (one
+    of BEHAVIOURS), passes anchor_xy[i] (k, 2) [m] at mid-frame heading about heading[i] [rad] (turns are centred
+    on it) at speed[i] [m/s], with gait cycles of stride_m[i] [m]; events (k, 5) are uniform draws in [0, 1) that
+    place each person's event (time, length, turn angle, turn direction, spin).
+
+    walk: constant speed and heading. turn: a turn of 45-120 deg within 0.5-1.5 s somewhere in the window.
     stop_and_go: decelerate, stand 1-3 s, walk on. stand: no motion, slowly turning on the spot half the time.
-    Draws a fixed number of random numbers whatever the behaviour.
     """
-    if behaviour not in BEHAVIOURS:
-        raise ValueError(f"unknown behaviour '{behaviour}': choose one of {BEHAVIOURS}")
+    behaviour = np.asarray(behaviour)
+    unknown = set(behaviour.tolist()).difference(BEHAVIOURS)
+    if unknown:
+        raise ValueError(f"unknown behaviour '{min(unknown)}': choose one of {BEHAVIOURS}")
     times = _sample_times(frame_period_s, margin_s)
     centre = frame_period_s / 2
-    event_time, event_length, turn, direction, spin = rng.uniform(
-        [-1.0, 1.0, np.deg2rad(45), 0.0, 0.0], [frame_period_s + 1.0, 3.0, np.deg2rad(120), 1.0, 1.0])
-    sign = 1.0 if direction < 0.5 else -1.0
-    speed_profile = np.full(times.shape, speed)
-    heading_profile = np.full(times.shape, heading)
-    if behaviour == "turn":
-        heading_profile = heading + sign * turn * (_smoothstep((times - event_time) / (0.5 * event_length)) - 0.5)
-    elif behaviour == "stop_and_go":
-        ramp = 0.6  # s to stop or to start
-        stopped = (_smoothstep((times - event_time) / ramp)
-                   * (1.0 - _smoothstep((times - event_time - ramp - event_length) / ramp)))
-        speed_profile = speed * (1.0 - stopped)
-    elif behaviour == "stand":
-        speed_profile = np.zeros(times.shape)
-        turn_rate = sign * 0.4 if spin < 0.5 else 0.0  # rad/s
-        heading_profile = heading + turn_rate * (times - centre)
-    velocity = speed_profile[:, None] * np.stack([np.cos(heading_profile), np.sin(heading_profile)], 1)
-    xy = np.concatenate([[[0.0, 0.0]], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * SAMPLE_DT, axis=0)])
-    xy += anchor_xy - np.array([np.interp(centre, times, xy[:, 0]), np.interp(centre, times, xy[:, 1])])
-    # gait cycles follow the distance walked (frozen while standing); the speed is the planned profile
-    return Trajectory(times=times, xy=xy, heading=heading_profile, cycles=_distance_walked(xy) / stride_m,
-                      speed=speed_profile)
+    low, width = _event_range(frame_period_s)
+    event_time, event_length, turn, direction, spin = (low + width * events).T[:, :, None]
+    turning, stopping, standing = (behaviour[:, None] == name for name in ("turn", "stop_and_go", "stand"))
+    sign = np.where(direction < 0.5, 1.0, -1.0)
+    # turn: the heading swings by sign * turn within event_length / 2; stop_and_go: the speed ramps down, stays 0
+    # for event_length and ramps up again; stand: no motion, spinning on the spot half the time
+    ramp = 0.6  # s to stop or to start
+    since = times - event_time
+    rise, fall = _smoothstep(np.stack([since / np.where(turning, 0.5 * event_length, ramp),
+                                       (since - ramp - event_length) / ramp]))
+    cruise = np.where(standing, 0.0, np.asarray(speed, dtype=np.float64)[:, None])  # (k, 1) [m/s]
+    speed_profile = np.where(stopping, cruise * (1.0 - rise * (1.0 - fall)), cruise)
+    spin_rate = np.where(standing & (spin < 0.5), sign * 0.4, 0.0)  # rad/s
+    heading_profile = np.asarray(heading, dtype=np.float64)[:, None] + np.where(
+        turning, sign * turn * (rise - 0.5), spin_rate * (times - centre))
+    # positions: the velocity integrated from mid-frame, where they pass the anchor; gait cycles: the distance
+    # walked (the speed integrated; frozen while standing) in strides; the speed is the planned profile
+    from_start, from_centre = _integrals(frame_period_s, margin_s)
+    velocity = speed_profile * np.stack([np.cos(heading_profile), np.sin(heading_profile)])
+    x, y = np.asarray(anchor_xy, dtype=np.float64).T[:, :, None] + velocity @ from_centre
+    cycles = (speed_profile @ from_start) / np.asarray(stride_m)[:, None]
+    return TrajectoryStack(times, np.stack([x, y, heading_profile, cycles, speed_profile]))
 
+
+def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndarray, heading: float,
+                    speed: float, stride_m: float, frame_period_s: float, margin_s: float = 2.0) -> Trajectory:
+    """The trajectory of one person (as `make_trajectories`) doing `behaviour` through `anchor_xy` (2,) [m] at
+    mid-frame, heading about `heading` [rad]. Draws 5 random numbers whatever the behaviour."""
+    return make_trajectories(np.array([behaviour]), rng.random((1, 5)), np.reshape(anchor_xy, (1, 2)),
+                             np.array([heading]), np.array([speed]), np.array([stride_m]), frame_period_s,
+                             margin_s).trajectory(0)

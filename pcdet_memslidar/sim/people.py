@@ -1,12 +1,15 @@
 """People of one frame: body shape, clothing reflectivities and a collision-free trajectory.
 
-People are placed one by one (a newly placed person may bring a companion walking side by side); a placement
-whose path during the frame comes closer than the domain's separation to someone already placed, or enters an
-obstacle's footprint, is redrawn. Everything is drawn from the frame's numpy Generator, so a frame's people
-depend only on its seed.
+MAX_TRIES candidate placements are drawn at once (a candidate may bring a companion walking side by side) and
+accepted in order unless one of their paths during the frame comes closer than the domain's separation to
+someone accepted before, or enters an obstacle's footprint. All draws are made up front with a fixed number of
+calls to the frame's numpy Generator, so a frame's people depend only on its seed; trajectories and conflicts
+are worked out for the first FIRST_TRIES candidates, and for all of them only in the rare frame that needs more.
 """
 from __future__ import annotations
 
+import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -14,13 +17,21 @@ import numpy as np
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.sim.bodies import BodyBank
 from pcdet_memslidar.sim.domains import DomainPreset
-from pcdet_memslidar.sim.motion import Trajectory, make_trajectory
+from pcdet_memslidar.sim.motion import SAMPLE_DT, Trajectory, TrajectoryStack, make_trajectories
 from pcdet_memslidar.sim.scenes import Scene
 
 BODY_RADIUS_M = 0.35  # clearance of a body's centre from obstacle footprints
 GROUP_SPACING_M = 0.75  # lateral distance of companions walking side by side
-MAX_TRIES = 60  # placements tried per frame before giving up on the remaining people
+MAX_TRIES = 60  # candidate placements per frame; people not placed by then are left out
+FIRST_TRIES = 16  # candidates worked out first: enough for > 99 % of frames of every domain
+# trajectories are sampled this long beyond each end of the frame: the pulse times lie within, and the motion
+# during the frame (anchored at mid-frame) does not depend on it
+MARGIN_S = SAMPLE_DT
 VEST_REFLECTIVITY = 0.95  # fluorescent fabric with retro-reflective stripes
+_REFLECTIVITY_LOW = np.array([0.3, 0.05, 0.05, 0.05])  # skin, upper clothing, lower clothing, shoes: uniform
+_REFLECTIVITY_WIDTH = np.array([0.55, 0.8, 0.5, 0.3]) - _REFLECTIVITY_LOW
+# [a, b]: person a (candidate a // 2) belongs to an earlier candidate than person b
+_EARLIER = np.arange(2 * MAX_TRIES)[:, None] // 2 < np.arange(2 * MAX_TRIES) // 2
 
 
 @dataclass(frozen=True)
@@ -40,20 +51,31 @@ class Person:
 def visible_x_range(mount: Mount, vfov_deg: float, scene: Scene) -> tuple[float, float]:
     """(x_min, x_max) [m] of placements: from where a 1.2 m high head enters the lower FoV edge to the scene's
     walking limit or where the upper FoV edge meets the ground."""
-    lower = np.deg2rad(mount.tilt_deg + vfov_deg / 2)
-    upper = np.deg2rad(mount.tilt_deg - vfov_deg / 2)
-    x_min = max(1.0, (mount.height - 1.2) / np.tan(lower))
-    x_max = scene.walk_x_max if upper <= 0 else min(scene.walk_x_max, mount.height / np.tan(upper))
+    lower = math.radians(mount.tilt_deg + vfov_deg / 2)
+    upper = math.radians(mount.tilt_deg - vfov_deg / 2)
+    x_min = max(1.0, (mount.height - 1.2) / math.tan(lower))
+    x_max = scene.walk_x_max if upper <= 0 else min(scene.walk_x_max, mount.height / math.tan(upper))
     return x_min, x_max
 
 
-def _draw_body(rng: np.random.Generator, preset: DomainPreset, bank: BodyBank) -> tuple[int, np.ndarray, bool]:
-    """A body shape, its (materials,) reflectivities and whether it wears a high-visibility vest."""
-    shapes = preset.shapes if preset.shapes is not None else tuple(range(bank.num_shapes))
-    shape = int(shapes[rng.integers(len(shapes))])
-    skin, upper, lower, shoes, vest_draw = rng.uniform([0.3, 0.05, 0.05, 0.05, 0.0], [0.55, 0.8, 0.5, 0.3, 1.0])
-    vest = bool(vest_draw < preset.vest_probability)
-    reflectivity = np.array([skin, VEST_REFLECTIVITY if vest else upper, lower, shoes])
+@functools.lru_cache(maxsize=None)
+def _behaviour_table(behaviours: tuple[tuple[str, float], ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Names (b,) and cumulative probabilities (b,) of a preset's behaviours (one uniform picks one, as
+    Generator.choice)."""
+    names, weights = zip(*behaviours)
+    cdf = np.cumsum(np.asarray(weights) / np.sum(weights))
+    return np.asarray(names), cdf / cdf[-1]
+
+
+def _draw_bodies(rng: np.random.Generator, count: int, preset: DomainPreset,
+                 bank: BodyBank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Body shapes (count,), their (count, materials) reflectivities and whether they wear a high-visibility vest
+    (count,)."""
+    shapes = np.asarray(preset.shapes if preset.shapes is not None else range(bank.num_shapes))
+    shape = shapes[(len(shapes) * rng.random(count)).astype(np.intp)]  # uniform, as rng.integers
+    reflectivity = _REFLECTIVITY_LOW + _REFLECTIVITY_WIDTH * rng.random((count, 4))
+    vest = rng.random(count) < preset.vest_probability
+    reflectivity[vest, 1] = VEST_REFLECTIVITY
     return shape, reflectivity, vest
 
 
@@ -61,53 +83,77 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
                   vfov_deg: float, frame_period_s: float, bank: BodyBank) -> list[Person]:
     """The people of one frame (possibly fewer than drawn when the scene is crowded)."""
     count = int(rng.integers(preset.people[0], preset.people[1] + 1))
+    # candidate c: a leader (person 2 c) and a companion (person 2 c + 1) who comes along if it is a group
     x_min, x_max = visible_x_range(mount, vfov_deg, scene)
-    names, weights = zip(*preset.behaviours)
-    behaviour_cdf = np.cumsum(np.asarray(weights) / np.sum(weights))  # drawn with one uniform, as Generator.choice
-    behaviour_cdf /= behaviour_cdf[-1]
-    people: list[Person] = []
-    frame, placed = None, None  # mask of the sample times during the frame, (k, F, 2) paths of those placed
-    for _ in range(MAX_TRIES):
-        if len(people) >= count:
+    grouped = (rng.random(MAX_TRIES) < preset.group_probability).tolist()
+    x = rng.uniform(x_min, x_max, MAX_TRIES)
+    y = rng.uniform(-1.0, 1.0, MAX_TRIES) * (x * math.tan(math.radians(hfov_deg / 2)) + 1.0)
+    side = (len(scene.walk_headings) * rng.random(MAX_TRIES)).astype(np.intp)  # uniform, as rng.integers
+    heading = np.asarray(scene.walk_headings)[side] + rng.normal(0.0, 0.2, MAX_TRIES)
+    names, behaviour_cdf = _behaviour_table(preset.behaviours)
+    behaviour = names[np.searchsorted(behaviour_cdf, rng.random(MAX_TRIES), side="right")]
+    speed = np.clip(rng.normal(1.37, 0.15, MAX_TRIES), 0.9, 1.8)
+    events = rng.random((MAX_TRIES, 5))
+    shape, reflectivity, vest = _draw_bodies(rng, 2 * MAX_TRIES, preset, bank)
+    phase = rng.random(2 * MAX_TRIES)  # each person starts at their own point of the gait cycle
+    anchor_xy, stride = np.stack([x, y], 1), bank.stride_length(shape)
+    for tries in (FIRST_TRIES, MAX_TRIES):
+        leaders = make_trajectories(behaviour[:tries], events[:tries], anchor_xy[:tries], heading[:tries],
+                                    speed[:tries], stride[0:2 * tries:2], frame_period_s, MARGIN_S)
+        companions = leaders.offset(np.full(tries, GROUP_SPACING_M), stride[1:2 * tries:2])
+        samples = np.stack([leaders.samples, companions.samples], axis=2).reshape(5, 2 * tries, -1)
+        samples[3] += phase[:2 * tries, None]
+        frame = np.flatnonzero((leaders.times >= 0.0) & (leaders.times <= frame_period_s))
+        paths = np.ascontiguousarray(samples[:2, :, frame[0]:frame[-1] + 1].transpose(0, 2, 1))
+        accepted = _accepted(paths, grouped, count, scene, preset.min_separation_m)
+        if sum(map(len, accepted)) >= count:
             break
-        size = 2 if count - len(people) >= 2 and rng.random() < preset.group_probability else 1
-        x = rng.uniform(x_min, x_max)
-        y = rng.uniform(-1.0, 1.0) * (x * np.tan(np.deg2rad(hfov_deg / 2)) + 1.0)
-        heading = scene.walk_headings[rng.integers(len(scene.walk_headings))] + rng.normal(0.0, 0.2)
-        behaviour = names[int(np.searchsorted(behaviour_cdf, rng.random(), side="right"))]
-        speed = float(np.clip(rng.normal(1.37, 0.15), 0.9, 1.8))
-        group = len(people)
-        members = []
-        for member in range(size):
-            shape, reflectivity, vest = _draw_body(rng, preset, bank)
-            stride = float(bank.stride_length(np.array([shape]))[0])
-            if member == 0:
-                trajectory = make_trajectory(behaviour, rng, np.array([x, y]), heading, speed, stride, frame_period_s)
-            else:
-                trajectory = members[0].trajectory.offset(GROUP_SPACING_M * (1 if member % 2 else -1), stride)
-            # each person starts at their own point of the gait cycle
-            phase = rng.random()
-            trajectory = Trajectory(trajectory.times, trajectory.xy, trajectory.heading, trajectory.cycles + phase,
-                                    trajectory.speed)
-            members.append(Person(shape, trajectory, reflectivity, behaviour, group, vest))
-        if placed is None:
-            frame = (members[0].trajectory.times >= 0.0) & (members[0].trajectory.times <= frame_period_s)
-            placed = np.zeros((0, frame.sum(), 2))
-        paths = np.stack([m.trajectory.xy[frame] for m in members])
-        if all(_is_free(path, placed, scene, preset.min_separation_m) for path in paths):
-            people.extend(members)
-            placed = np.concatenate([placed, paths])
+    trajectories = TrajectoryStack(leaders.times, samples)
+    people: list[Person] = []
+    for members in accepted:
+        people += [Person(int(shape[p]), trajectories.trajectory(p), reflectivity[p], str(behaviour[p // 2]),
+                          len(people), bool(vest[p])) for p in members]
     return people
 
 
-def _is_free(path: np.ndarray, others: np.ndarray, scene: Scene, separation_m: float) -> bool:
-    """True if the path (F, 2) [m] of a person during the frame stays clear of obstacle footprints and of the paths
-    (k, F, 2) of others."""
-    if len(scene.obstacles):
-        low = scene.obstacles[:, :2] - BODY_RADIUS_M
-        high = scene.obstacles[:, 2:] + BODY_RADIUS_M
-        inside = ((path[:, None, :] > low[None]) & (path[:, None, :] < high[None])).all(axis=2)
-        if inside.any():
-            return False
-    gap = path - others
-    return not len(others) or bool(np.hypot(gap[..., 0], gap[..., 1]).min() >= separation_m)
+def _accepted(paths: np.ndarray, grouped: list[bool], count: int, scene: Scene,
+              separation_m: float) -> list[range]:
+    """The members of the candidates accepted in order until they make up `count` people, given the paths
+    (2, F, m) [m] (x and y during the frame) of m people (person 2 c + member of candidate c): all clear of
+    obstacles and of those accepted before (a group of two only where two people are still missing)."""
+    blocked, clashes = _conflicts(paths, scene, separation_m)
+    accepted: list[range] = []
+    placed: set[int] = set()
+    for candidate in range(paths.shape[2] // 2):
+        if len(placed) >= count:
+            break
+        members = range(2 * candidate, 2 * candidate + (2 if grouped[candidate] and count - len(placed) >= 2 else 1))
+        if not any(blocked[p] or not placed.isdisjoint(clashes.get(p, ())) for p in members):
+            accepted.append(members)
+            placed.update(members)
+    return accepted
+
+
+def _conflicts(paths: np.ndarray, scene: Scene, separation_m: float) -> tuple[list[bool], dict[int, list[int]]]:
+    """Of the paths (2, F, m) [m] (x and y during the frame) of m people (person 2 c + member of candidate c):
+    whether each enters an obstacle's footprint (m), and for each person (key) the people of earlier candidates
+    who come closer than separation_m. Exact tests only where bounding boxes come close."""
+    low, high = paths.min(1), paths.max(1)  # (2, m)
+    # obstacle footprints grown by the body, tested against the paths whose boxes overlap them
+    obstacle_low = scene.obstacles[:, :2].T - BODY_RADIUS_M  # (2, O)
+    obstacle_high = scene.obstacles[:, 2:].T + BODY_RADIUS_M
+    overlap = (high[:, :, None] > obstacle_low[:, None]) & (low[:, :, None] < obstacle_high[:, None])
+    person, obstacle = np.nonzero(overlap[0] & overlap[1])
+    path = paths[:, :, person]
+    inside = (path > obstacle_low[:, None, obstacle]) & (path < obstacle_high[:, None, obstacle])
+    blocked = np.zeros(paths.shape[2], dtype=bool)
+    blocked[person[(inside[0] & inside[1]).any(0)]] = True
+    # separations, tested for the people of earlier and later candidates whose boxes come close
+    near = (low[:, None] - high[:, :, None] < separation_m) & (low[:, :, None] - high[:, None] < separation_m)
+    earlier, later = np.nonzero(near[0] & near[1] & _EARLIER[:paths.shape[2], :paths.shape[2]])
+    gap = paths[:, :, earlier] - paths[:, :, later]
+    close = (gap * gap).sum(0).min(0) < separation_m * separation_m
+    clashes: dict[int, list[int]] = {}
+    for person, other in zip(later[close].tolist(), earlier[close].tolist()):
+        clashes.setdefault(person, []).append(other)
+    return blocked.tolist(), clashes

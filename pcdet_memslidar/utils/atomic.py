@@ -14,37 +14,42 @@ os.umask(_UMASK)
 _TEMPORARY_NUMBER = itertools.count()
 
 
-def _create_temporary(path: Path) -> Path:
-    """Create an empty, new temporary file `.<name>.<pid>.<n>.tmp` beside `path` (creating missing folders), with
-    the permissions of any new file (0o666 less the umask)."""
+def _open_temporary(path: Path) -> tuple[str, int]:
+    """Create a new temporary file `.<name>.<pid>.<n>.tmp` beside `path` (creating missing folders), with the
+    permissions of any new file (0o666 less the umask); returns its path and a descriptor open for writing."""
     while True:
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{next(_TEMPORARY_NUMBER)}.tmp")
+        tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{os.getpid()}.{next(_TEMPORARY_NUMBER)}.tmp")
         try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
+            return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         except FileExistsError:  # left behind by a killed process that had the same pid
             continue
         except FileNotFoundError:
-            path.parent.mkdir(parents=True, exist_ok=True)
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it onto `path`, else delete it."""
-    path = Path(path)
-    tmp = _create_temporary(path)
+    tmp, descriptor = _open_temporary(path)
+    os.close(descriptor)
     try:
-        yield tmp
+        yield Path(tmp)
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        Path(tmp).unlink(missing_ok=True)
         raise
 
 
-def write_bytes(path: str | Path, data: bytes) -> None:
-    """Write `data` to `path` atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+def write_bytes(path: str | Path, data) -> None:
+    """Write `data` (bytes or any C-contiguous buffer, e.g. a numpy array) to `path` atomically."""
+    tmp, descriptor = _open_temporary(path)
+    try:
+        with open(descriptor, "wb") as file:
+            file.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def write_text(path: str | Path, text: str) -> None:

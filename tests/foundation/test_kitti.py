@@ -1,5 +1,4 @@
 """KITTI files: points, labels, calib, ImageSets; label <-> LiDAR boxes; malformed input; atomic writes."""
-import pathlib
 
 import numpy as np
 import pytest
@@ -7,6 +6,7 @@ import pytest
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io import kitti
+from pcdet_memslidar.utils import atomic
 
 LINE = "Pedestrian 0.00 0 -1.37 600.00 150.00 650.00 250.00 1.80 0.50 0.60 -2.00 0.00 10.00 -1.57"
 
@@ -156,12 +156,22 @@ def test_failed_write_leaves_no_file_and_no_temporary(tmp_path, monkeypatch):
     kitti.write_points(target, np.ones((2, 4), np.float32))
     original = target.read_bytes()
 
-    def crash(self, data):  # dies half-way through writing the temporary file
-        with open(self, "wb") as handle:
-            handle.write(data[: len(data) // 2])
-        raise OSError("disk full")
+    class Crashing:  # a file that dies half-way through writing the temporary file
+        def __init__(self, handle):
+            self.handle = handle
 
-    monkeypatch.setattr(pathlib.Path, "write_bytes", crash)
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *error):
+            self.handle.close()
+
+        def write(self, data):
+            data = memoryview(data).cast("B")
+            self.handle.write(data[: len(data) // 2])
+            raise OSError("disk full")
+
+    monkeypatch.setattr(atomic, "open", lambda *args, **kwargs: Crashing(open(*args, **kwargs)), raising=False)
     with pytest.raises(OSError, match="disk full"):
         kitti.write_points(target, np.zeros((50, 4), np.float32))
     with pytest.raises(OSError, match="disk full"):

@@ -4,7 +4,7 @@ import pytest
 
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.sim.bodies import LODS, load_body_bank
-from pcdet_memslidar.sim.caster import BODY_HEIGHT_M, BODY_REACH_M, Caster, body_scene
+from pcdet_memslidar.sim.caster import Caster, body_scene
 from pcdet_memslidar.sim.motion import make_trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person
@@ -184,8 +184,16 @@ def test_culled_casting_finds_exactly_the_hits_of_a_brute_force_cast(mount, plac
 
 
 @pytest.mark.parametrize("lod", LODS)
-def test_candidate_cylinder_holds_every_body_in_every_pose(lod):
-    """The rays cast against a person come from a cylinder of BODY_REACH_M around its path, up to BODY_HEIGHT_M."""
-    low, high = body_scene(load_body_bank(), lod).pose_box  # (3, G): each part of each shape over all poses
-    assert np.hypot(np.maximum(-low[0], high[0]), np.maximum(-low[1], high[1])).max() <= BODY_REACH_M
-    assert high[2].max() <= BODY_HEIGHT_M and low[2].min() > -0.01
+def test_candidate_cylinder_holds_every_vertex_of_every_pose(lod):
+    """The rays cast against a person come from a cylinder of the body's reach around its path, up to its height:
+    every vertex of every bank pose of every shape lies inside."""
+    bank = load_body_bank()
+    bodies = body_scene(bank, lod)
+    mesh = bank.meshes[lod]
+    vertex, part = np.unique(np.stack([mesh.triangles.ravel(), np.repeat(mesh.triangle_part, 3)]), axis=1)
+    transform = bank.transforms[:, :, part]  # (S, poses, U, 3, 4)
+    rest = mesh.rest_vertices[:, vertex].astype(np.float64)  # (S, U, 3)
+    posed = np.einsum("spuij,suj->spui", transform[..., :3], rest) + transform[..., 3]
+    assert np.all(np.hypot(posed[..., 0], posed[..., 1]).max((1, 2)) <= bodies.reach)
+    assert np.all(posed[..., 2].max((1, 2)) <= bodies.height) and posed[..., 2].min() > -0.01
+    assert 0.4 < bodies.reach.min() and bodies.reach.max() < 0.75 and 1.4 < bodies.height.min()
