@@ -217,9 +217,8 @@ def nearest_body_hits(pair, geometry, rays, t_hit, hit_geometry, primitive, norm
         changed[r % pulses] = True
         if r < pulses:
             n, d = normal[best_i], rays[best_i, 3:]
-            dot = abs(n[0] * d[0] + n[1] * d[1] + n[2] * d[2])
-            cos_incidence[r] = dot / np.sqrt((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) * (d[0] * d[0] + d[1] * d[1]
-                                                                                        + d[2] * d[2]))
+            norm = np.sqrt((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) * (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+            cos_incidence[r] = abs(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]) / norm if norm > 0 else 0.0
             triangle = material_start[geometry[best_i]] + primitive[best_i]
             reflectivity[r] = person_reflectivity[k, material[triangle]]
             person_hit[r] = k
