@@ -3,8 +3,9 @@
     python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2] [--where /dev/shm]
 
 Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after
-building every viewpoint's caster and one warm-up frame: frames/s of whole frames as `simulate_dataset` makes
-them in one process (people, casting, sensor, labels, writing the KITTI files, ImageSets at the end), rays/s, and
+building every viewpoint's caster, one warm-up frame and a warm-up run: frames/s of whole frames as
+`simulate_dataset` makes them in one process (people, casting, sensor, labels, writing the KITTI files, ImageSets
+at the end), rays/s, and
 the ratio of the whole-frame time to the pure ray-casting time of the same rays (all rays of the frame cast once,
 on all cores, against one prebuilt Open3D scene holding the static world and every person posed at mid-frame);
 then frames/s of `simulate_dataset` with --workers processes, start-up included, and the whole/pure ratio of
@@ -119,7 +120,9 @@ def speed(preset, frames: int, workers: int, where: str | None = None, seed: int
         get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
     simulate_frame(preset, seed, 10_000)
     with tempfile.TemporaryDirectory(dir=where) as folder:
-        # whole frames as `memslidar simulate` makes them in one process (writing overlaps the next frame)
+        # whole frames as `memslidar simulate` makes them in one process (two at a time in threads), after a
+        # warm-up run in which the threads' memory arenas grow to their working size
+        simulate_dataset(preset, 8, Path(folder) / "warm-up", seed=seed + 1, progress=False)
         start = time.perf_counter()
         simulate_dataset(preset, frames, Path(folder) / "whole", seed=seed, workers=1, progress=False)
         whole = time.perf_counter() - start
