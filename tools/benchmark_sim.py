@@ -88,12 +88,12 @@ def frame_people(preset, seed, index, bank):
 STAGES = ("people", "casting", "cast_rays", "sensor", "labels", "writing")
 
 
-def _warm_up(preset) -> None:
-    """Build the casters of every viewpoint of `preset` in this process and make one frame."""
+def _warm_up(preset, threads: int = 1) -> None:
+    """Build the casters of every viewpoint of `preset` in this process (Open3D `threads`) and make one frame."""
     keep_freed_memory()
     for viewpoint in preset.viewpoints:
-        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod, 1)
-    simulate_frame(preset, 0, 10_000, threads=1)
+        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod, threads)
+    simulate_frame(preset, 0, 10_000, threads=threads)
 
 
 def _make_frame(args) -> None:
@@ -116,9 +116,7 @@ def speed(preset, frames: int, workers: int, where: str | None = None, seed: int
     """Frames/s, rays/s, whole/pure ratio and ms per frame of each stage of `frames` frames of `preset`, written
     into a temporary folder in `where` (None: the system's temporary folder)."""
     bank = load_body_bank()
-    for viewpoint in preset.viewpoints:  # warm-up: static worlds built and cast once
-        get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
-    simulate_frame(preset, seed, 10_000)
+    _warm_up(preset, threads=0)  # static worlds built and cast once
     with tempfile.TemporaryDirectory(dir=where) as folder:
         # whole frames as `memslidar simulate` makes them in one process (two at a time in threads), after a
         # warm-up run in which the threads' memory arenas grow to their working size

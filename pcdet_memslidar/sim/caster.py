@@ -195,17 +195,6 @@ class Caster:
         self.angular_order = np.argsort(key, kind="stable")
         self.angular_key = key[self.angular_order]
 
-    def candidate_pairs(self, people: list[Person], time_step_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """Ray (n,) and person (n,) indices of the rays that can reach each person: per time slice of the pattern,
-        those in the azimuth and elevation range of a vertical cylinder around the person's path while the rays
-        of that slice see it (pulse times quantised by time_step_s as in `cast_frame`)."""
-        bodies = self.bodies
-        trajectories = TrajectoryStack.of([person.trajectory for person in people])
-        shape = np.array([person.shape for person in people])
-        return candidate_pairs(_pose_time(self.slice_times, time_step_s), trajectories.times, trajectories.samples,
-                               bodies.reach[shape], bodies.height[shape], self.origin, self.angular_key,
-                               self.angular_order, AZIMUTH_BINS)
-
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
                    phase_steps: int | None = None) -> FrameHits:
         """Nearest hits of all pulses with `people` in the world.
@@ -222,13 +211,15 @@ class Caster:
             return FrameHits(ray_range[:p], cos, reflectivity, person_hit, edge_range, unoccluded, 0.0)
         # the candidate rays of every person, each moved into the rest frames of the body parts it can reach
         bodies = self.bodies
-        trajectories = TrajectoryStack.of([person.trajectory for person in people])
-        ray, person = self.candidate_pairs(people, time_step_s)
+        trajectories = TrajectoryStack.of([someone.trajectory for someone in people])
+        shape = np.array([someone.shape for someone in people])
+        ray, person = candidate_pairs(_pose_time(self.slice_times, time_step_s), trajectories.times,
+                                      trajectories.samples, bodies.reach[shape], bodies.height[shape], self.origin,
+                                      self.angular_key, self.angular_order, AZIMUTH_BINS)
         heading = trajectories.samples[2]
         pair, geometry, rays = part_rays(
             ray, person, _pose_time(self.time_offset.take(ray), time_step_s), self.origin, self.directions,
-            trajectories.times, trajectories.samples, np.cos(heading), np.sin(heading),
-            np.array([person.shape for person in people]), phase_steps or 0,
+            trajectories.times, trajectories.samples, np.cos(heading), np.sin(heading), shape, phase_steps or 0,
             self.bank.transforms.reshape(*self.bank.transforms.shape[:3], 12), bodies.body_box, bodies.part_box,
             bodies.rest_box, bodies.offset)
         start = time.perf_counter()
@@ -237,7 +228,7 @@ class Caster:
         changed = np.zeros(p, dtype=bool)
         nearest_body_hits(pair, geometry, rays, t_hit, hit_geometry, primitive, normal, ray, person, p,
                           MAX_BODY_RANGE_M, bodies.material, bodies.material_start,
-                          np.array([person.reflectivity for person in people]), ray_range, cos, reflectivity,
+                          np.array([someone.reflectivity for someone in people]), ray_range, cos, reflectivity,
                           person_hit, unoccluded, changed)
         if self.has_subrays:
             changed = np.flatnonzero(changed)

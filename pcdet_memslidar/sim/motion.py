@@ -45,10 +45,6 @@ class Trajectory:
         t = np.asarray(t, dtype=np.float64)
         return TrajectoryStack.of([self]).state(np.zeros(t.shape, dtype=np.int64), t)
 
-    def offset(self, lateral_m: float, stride_m: float) -> "Trajectory":
-        """The trajectory of a companion walking `lateral_m` to the left (negative: right), same timing."""
-        return TrajectoryStack.of([self]).offset(np.array([lateral_m]), np.array([stride_m])).trajectory(0)
-
 
 @dataclass(frozen=True)
 class TrajectoryStack:
@@ -103,11 +99,6 @@ class TrajectoryStack:
 def _smoothstep(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return x * x * (3.0 - 2.0 * x)
-
-
-def from_path(times: np.ndarray, xy: np.ndarray, heading: np.ndarray, stride_m: float) -> Trajectory:
-    """Trajectory along sampled positions xy (n, 2): speed and gait cycles from the distance walked."""
-    return TrajectoryStack.along_paths(times, xy.T[:, None], heading[None], np.array([stride_m])).trajectory(0)
 
 
 @functools.lru_cache(maxsize=None)

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from pcdet_memslidar.sim.motion import (BEHAVIOURS, SAMPLE_DT, WALK_SPEED_FULL, TrajectoryStack, from_path,
+from pcdet_memslidar.sim.motion import (BEHAVIOURS, SAMPLE_DT, WALK_SPEED_FULL, TrajectoryStack,
                                         make_trajectories, make_trajectory)
 
 
@@ -52,6 +52,11 @@ def test_batch_of_trajectories_equals_one_trajectory_at_a_time(margin_s):
                           stride[:2], 0.4)
 
 
+def companion(trajectory):
+    """The trajectory of someone walking 0.75 m to the left of `trajectory`, with 1.3 m strides."""
+    return TrajectoryStack.of([trajectory]).offset(np.array([0.75]), np.array([1.3])).trajectory(0)
+
+
 def test_a_short_window_gives_the_same_motion_during_the_frame():
     t = np.linspace(0.0, 0.4, 41)
     for seed in range(20):
@@ -60,7 +65,7 @@ def test_a_short_window_gives_the_same_motion_during_the_frame():
             long = make_trajectory(behaviour, np.random.default_rng(seed), *args, margin_s=2.0)
             short = make_trajectory(behaviour, np.random.default_rng(seed), *args, margin_s=SAMPLE_DT)
             assert len(short.times) == 23 and short.times[0] < 0.0 and short.times[-1] > 0.4
-            for a, b in ((long, short), (long.offset(0.75, 1.3), short.offset(0.75, 1.3))):
+            for a, b in ((long, short), (companion(long), companion(short))):
                 (xy_a, heading_a, phase_a, walk_a), (xy_b, heading_b, phase_b, walk_b) = a.state(t), b.state(t)
                 assert xy_a == pytest.approx(xy_b, abs=1e-9) and heading_a == pytest.approx(heading_b, abs=1e-9)
                 assert walk_a == pytest.approx(walk_b, abs=1e-9)
@@ -76,8 +81,8 @@ def test_companions_walk_beside_at_the_same_timing():
     lateral, stride = rng.uniform(-1, 1, k), np.full(k, 1.3)
     companions = leaders.offset(lateral, stride)
     for i in range(k):
-        single = leaders.trajectory(i).offset(lateral[i], stride[i])
-        assert TrajectoryStack.of([single]).samples[:, 0] == pytest.approx(companions.samples[:, i], abs=1e-12)
+        single = TrajectoryStack.of([leaders.trajectory(i)]).offset(lateral[i:i + 1], stride[i:i + 1])
+        assert single.samples[:, 0] == pytest.approx(companions.samples[:, i], abs=1e-12)
     gap = companions.samples[:2] - leaders.samples[:2]
     assert np.hypot(*gap) == pytest.approx(np.abs(lateral)[:, None] * np.ones(leaders.times.shape))
     # walking straight, the companion's gait follows the leader's distance walked
@@ -85,5 +90,6 @@ def test_companions_walk_beside_at_the_same_timing():
     cycles = companions.samples[3] * stride[:, None] - leaders.samples[3] * 1.44
     assert np.abs(cycles[straight]).max() < 1e-9
     assert np.abs(companions.samples[4] - leaders.samples[4])[behaviour == "walk"].max() < 1e-9
-    path = from_path(leaders.times, leaders.trajectory(0).xy, leaders.samples[2, 0], 1.44)
-    assert path.cycles == pytest.approx(leaders.samples[3, 0]) and path.speed == pytest.approx(leaders.samples[4, 0])
+    path = TrajectoryStack.along_paths(leaders.times, leaders.samples[:2, :1], leaders.samples[2, :1], np.array([1.44]))
+    assert path.samples[3, 0] == pytest.approx(leaders.samples[3, 0])
+    assert path.samples[4, 0] == pytest.approx(leaders.samples[4, 0])
