@@ -44,13 +44,13 @@ from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import load_params_from_file
-from pcdet_memslidar.runtime.common import (available_cores, create_logger, get_device, set_random_seed,
-                                            set_torch_threads)
+from pcdet_memslidar.runtime.common import create_logger, get_device, set_random_seed, set_torch_threads
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
 from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.cores import available_cores
 
 MODELS = ("M1", "M2", "M3", "M4")
 PROFILES = ("smoke", "quick", "paper")

@@ -24,12 +24,13 @@ import torch
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.runtime.checkpoint import load_params_from_file
-from pcdet_memslidar.runtime.common import available_cores, get_device, set_random_seed
+from pcdet_memslidar.runtime.common import get_device, set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.runtime.train_loop import train_model, train_one_step
 from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.cores import available_cores
 
 # name -> (xy voxel size [m], BEV NUM_FILTERS, NUM_UPSAMPLE_FILTERS); 'paper' is the config as written
 VARIANTS = {

@@ -1,17 +1,20 @@
 """Benchmark the simulator: speed per domain and the speed-vs-error trade-off of mesh detail and time handling.
 
-    python tools/benchmark_sim.py [--frames 20] [--error-frames 6] [--workers 2] [--where /dev/shm]
+    python tools/benchmark_sim.py [--frames 60] [--error-frames 6] [--workers 2] [--where /dev/shm]
 
 Part 1, per domain (and the paper target: cube1_paper pattern, 10 people, motion within the frame), after
-building every viewpoint's caster, one warm-up frame and a warm-up run: frames/s of whole frames as
-`simulate_dataset` makes them in one process (people, casting, sensor, labels, writing the KITTI files, ImageSets
-at the end), rays/s, and
-the ratio of the whole-frame time to the pure ray-casting time of the same rays (all rays of the frame cast once,
-on all cores, against one prebuilt Open3D scene holding the static world and every person posed at mid-frame);
-then frames/s of `simulate_dataset` with --workers processes, start-up included, and the whole/pure ratio of
-such processes once they have built their casters; then the ms per frame of each stage, one at a time
-(in one process, `simulate_dataset` makes two frames at a time in threads). Runs with glibc keeping freed memory,
-as simulate_dataset does; writes into memory (/dev/shm) unless --where names another folder.
+building every viewpoint's caster, one warm-up frame and a warm-up run. The whole frame is people, casting,
+sensor, labels and writing the KITTI files; the pure cast is all rays of the frame cast once against one prebuilt
+Open3D scene holding the static world and every person posed at mid-frame. Three like-for-like ratios of
+whole-frame time to pure-cast time:
+- one core: the frames made one at a time in this thread, Open3D on one thread, against the pure cast on one
+  thread (the CPU cost of a frame against that of its cast);
+- one process: frames/s of `simulate_dataset` in one process (two frames at a time in threads, Open3D on all
+  cores; Python's interpreter lock serialises their Python parts) against the pure cast on all cores;
+- workers: `simulate_dataset` with --workers processes once they have built their casters (each process on one
+  core) against the pure cast on all cores; frames/s with their start-up is shown too.
+Then the ms per frame of each stage on one core. Runs with glibc keeping freed memory, as simulate_dataset does;
+writes into memory (/dev/shm) unless --where names another folder.
 Part 2: for the frames of the paper target, every body detail level x time handling against the finest setting
 ('full' mesh, each pulse at its own time): displacement of the pulses that hit a person in both, share of
 person pulses that hit a person in only one, and time per frame.
@@ -56,8 +59,9 @@ def posed_world_triangles(bank, lod, person, time_s) -> np.ndarray:
     return world
 
 
-def pure_cast_seconds(caster, scene_name, people, bank, lod, repeats=3) -> float:
-    """Seconds to cast all rays of a frame once against a prebuilt scene of the static world + posed people."""
+def pure_cast_seconds(caster, scene_name, people, bank, lod, threads: int, repeats=3) -> float:
+    """Seconds to cast all rays of a frame once, on `threads` threads (0: all cores), against a prebuilt scene of
+    the static world + posed people."""
     o3d = import_open3d()
     vertices, triangles, _ = get_scene(scene_name).triangles()
     scene = o3d.t.geometry.RaycastingScene()
@@ -71,7 +75,7 @@ def pure_cast_seconds(caster, scene_name, people, bank, lod, repeats=3) -> float
     scene.cast_rays(rays)  # builds the BVH
     start = time.perf_counter()
     for _ in range(repeats):
-        scene.cast_rays(rays)
+        scene.cast_rays(rays, nthreads=threads)
     return (time.perf_counter() - start) / repeats
 
 
@@ -108,37 +112,42 @@ def started_seconds(preset, frames: int, workers: int, layout: KittiLayout, fing
                              initargs=(preset,)) as pool:
         list(pool.map(time.sleep, [1.0] * workers))  # every process started and warmed up
         start = time.perf_counter()
-        list(pool.map(_make_frame, [(preset, seed, index, layout, fingerprint) for index in range(frames)]))
+        list(pool.map(_make_frame, [(preset, seed, index, layout, fingerprint) for index in range(frames)],
+                      chunksize=4))  # as simulate_dataset
         return time.perf_counter() - start
 
 
 def speed(preset, frames: int, workers: int, where: str | None = None, seed: int = 0) -> dict:
-    """Frames/s, rays/s, whole/pure ratio and ms per frame of each stage of `frames` frames of `preset`, written
+    """Frames/s, rays/s, whole/pure ratios and ms per frame of each stage of `frames` frames of `preset`, written
     into a temporary folder in `where` (None: the system's temporary folder)."""
     bank = load_body_bank()
-    _warm_up(preset, threads=0)  # static worlds built and cast once
+    for threads in (0, 1):  # static worlds built and cast once, for all cores and for one
+        _warm_up(preset, threads)
     with tempfile.TemporaryDirectory(dir=where) as folder:
-        # whole frames as `memslidar simulate` makes them in one process (two at a time in threads), after a
-        # warm-up run in which the threads' memory arenas grow to their working size
+        # one process, as `memslidar simulate` makes frames (two at a time in threads), after a warm-up run in which
+        # the threads' memory arenas grow to their working size
         simulate_dataset(preset, 8, Path(folder) / "warm-up", seed=seed + 1, progress=False)
         start = time.perf_counter()
         simulate_dataset(preset, frames, Path(folder) / "whole", seed=seed, workers=1, progress=False)
         whole = time.perf_counter() - start
-        # the same frames stage by stage, and the pure cast of their rays
+        # one core: the same frames one at a time, stage by stage, and the pure cast of their rays
         fingerprint = domain_settings(preset, seed)["fingerprint"]
         layout = KittiLayout(Path(folder) / "stages")
-        pure, rays, people_count = 0.0, 0, 0
+        core, pure, pure_core, rays, people_count = 0.0, 0.0, 0.0, 0, 0
         stages = dict.fromkeys(STAGES, 0.0)
         for index in range(frames):
-            frame = simulate_frame(preset, seed, index)
             start = time.perf_counter()
+            frame = simulate_frame(preset, seed, index, threads=1)
+            written = time.perf_counter()
             write_simulated_frame(layout, index, frame, fingerprint)
-            stages["writing"] += time.perf_counter() - start
+            core += time.perf_counter() - start
+            stages["writing"] += time.perf_counter() - written
             for stage, seconds in frame.seconds.items():
                 stages[stage] += seconds
             viewpoint, people = frame_people(preset, seed, index, bank)
             caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod)
-            pure += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod)
+            pure += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod, threads=0)
+            pure_core += pure_cast_seconds(caster, viewpoint.scene, people, bank, preset.lod, threads=1)
             rays += len(caster.directions)
             people_count += len(people)
         # in `workers` processes: start-up included, and per frame once every process has its casters
@@ -146,9 +155,9 @@ def speed(preset, frames: int, workers: int, where: str | None = None, seed: int
         simulate_dataset(preset, frames, Path(folder) / "parallel", seed=seed, workers=workers, progress=False)
         parallel = time.perf_counter() - start
         started = started_seconds(preset, frames, workers, KittiLayout(Path(folder) / "started"), fingerprint, seed)
-    return dict(fps=frames / whole, rays_per_s=rays / whole, ratio=whole / pure,
+    return dict(fps=frames / whole, rays_per_s=rays / whole, core_ratio=core / pure_core, ratio=whole / pure,
                 people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / parallel,
-                parallel_ratio=started / pure,
+                parallel_ratio=started / pure, core_ms=1000 * core / frames, pure_core_ms=1000 * pure_core / frames,
                 whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames,
                 **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
 
@@ -193,7 +202,7 @@ def errors(preset, frames: int, seed: int = 0) -> list[tuple]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=20, help="frames per domain for the speed table")
+    parser.add_argument("--frames", type=int, default=60, help="frames per domain for the speed table")
     parser.add_argument("--error-frames", type=int, default=6, help="frames for the speed-vs-error table")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--where", default="/dev/shm" if Path("/dev/shm").is_dir() else None,
@@ -204,18 +213,20 @@ def main() -> None:
     keep_freed_memory()  # as simulate_dataset does
     target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))
     workers = f"x{args.workers} workers"
-    print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure cast':>16s} "
-          f"{'frames/s ' + workers:>19s} {'whole/pure ' + workers:>21s}")
+    print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure, one core':>21s} "
+          f"{'whole/pure, one process':>24s} {'frames/s ' + workers:>19s} {'whole/pure ' + workers:>21s}")
     results = {}
     for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
         r = results[preset.name] = speed(preset, args.frames, args.workers, args.where)
         print(f"{preset.name:34s} {r['people_per_frame']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} "
-              f"{r['rays_per_s'] / 1e6:8.2f} {r['ratio']:16.2f} {r['parallel_fps']:19.1f} {r['parallel_ratio']:21.2f}")
-    print(f"\nms per frame ('casting' includes 'cast_rays', the time inside Open3D; 'pure cast': all rays of the "
-          f"frame against one prebuilt scene)\n{'domain':34s} " + " ".join(f"{s:>9s}" for s in STAGES)
+              f"{r['rays_per_s'] / 1e6:8.2f} {r['core_ratio']:21.2f} {r['ratio']:24.2f} {r['parallel_fps']:19.1f} "
+              f"{r['parallel_ratio']:21.2f}")
+    print(f"\nms per frame on one core ('casting' includes 'cast_rays', the time inside Open3D; 'pure cast': all rays "
+          f"of the frame against one prebuilt scene)\n{'domain':34s} " + " ".join(f"{s:>9s}" for s in STAGES)
           + f" {'whole':>9s} {'pure cast':>9s}")
     for name, r in results.items():
-        print(f"{name:34s} " + " ".join(f"{r[s]:9.1f}" for s in STAGES) + f" {r['whole_ms']:9.1f} {r['pure_ms']:9.1f}")
+        print(f"{name:34s} " + " ".join(f"{r[s]:9.1f}" for s in STAGES)
+              + f" {r['core_ms']:9.1f} {r['pure_core_ms']:9.1f}")
     print(f"\nspeed vs error ({args.error_frames} frames of the paper target; reference: 'full' mesh, per pulse; "
           f"displacement of person hits in cm)")
     print(f"{'mesh':8s} {'time handling':14s} {'median':>7s} {'p90':>7s} {'person pulses changed %':>24s} "

@@ -15,6 +15,7 @@ Every write is atomic; malformed input raises DataFormatError naming the file an
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -161,23 +162,24 @@ def read_label(path: str | Path) -> KittiLabel:
 
 def write_label(path: str | Path, label: KittiLabel) -> None:
     """Write `label` as a KITTI label_2 file (with a score column when label.score is not None), atomically."""
+    numbers = np.column_stack([label.truncated, label.alpha, np.reshape(label.bbox, (-1, 4)),
+                               np.reshape(label.dimensions, (-1, 3))[:, [1, 2, 0]], np.reshape(label.location, (-1, 3)),
+                               label.rotation_y] + ([label.score] if label.score is not None else [])).astype(float)
+    finite = np.isfinite(numbers).all(axis=1)
     lines = []
-    for i, name in enumerate(label.name):
+    for i, (name, row) in enumerate(zip(label.name, numbers.tolist())):
         name = str(name)
         if not name or any(char.isspace() for char in name):
             raise DataFormatError(path, f"object {i}: class name {name!r} must be one word")
-        h, w, l = label.dimensions[i, 1], label.dimensions[i, 2], label.dimensions[i, 0]
-        numbers = [label.truncated[i], label.alpha[i], *label.bbox[i], h, w, l, *label.location[i],
-                   label.rotation_y[i]] + ([label.score[i]] if label.score is not None else [])
-        if not np.isfinite(numbers).all():
+        if not finite[i]:
             raise DataFormatError(path, f"object {i} ({name}): NaN or inf value")
+        h, w, l = row[6:9]
         if min(h, w, l) < 0 and name != DONT_CARE:
             raise DataFormatError(path, f"object {i} ({name}): negative size l h w = {l} {h} {w}")
-        line = (f"{name} {label.truncated[i]:.2f} {int(label.occluded[i])} {label.alpha[i]:.4f} "
-                + " ".join(f"{v:.2f}" for v in label.bbox[i]) + " "
-                + " ".join(f"{v:.4f}" for v in (h, w, l, *label.location[i], label.rotation_y[i])))
+        line = (f"{name} {row[0]:.2f} {int(label.occluded[i])} {row[1]:.4f} "
+                + " ".join(f"{v:.2f}" for v in row[2:6]) + " " + " ".join(f"{v:.4f}" for v in row[6:13]))
         if label.score is not None:
-            line += f" {label.score[i]:.6f}"
+            line += f" {row[13]:.6f}"
         lines.append(line + "\n")
     write_text(path, "".join(lines))
 
@@ -253,10 +255,19 @@ def read_calib(path: str | Path) -> Calibration:
 
 def write_calib(path: str | Path, calib: Calibration) -> None:
     """Write `calib` as a KITTI calib file (P0-P3 all P2, Tr_imu_to_velo identity), atomically."""
-    matrices = {"P0": calib.P2, "P1": calib.P2, "P2": calib.P2, "P3": calib.P2, "R0_rect": calib.R0,
-                "Tr_velo_to_cam": calib.V2C, "Tr_imu_to_velo": np.eye(3, 4)}
-    write_text(path, "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in np.asarray(matrix, float).ravel()) + "\n"
-                             for key, matrix in matrices.items()))
+    write_text(path, _calib_text(*(np.asarray(matrix, dtype=np.float64).tobytes()
+                                   for matrix in (calib.P2, calib.R0, calib.V2C))))
+
+
+@functools.lru_cache(maxsize=8)
+def _calib_text(p2: bytes, r0: bytes, v2c: bytes) -> str:
+    """The calib file of P2 (3, 4), R0 (3, 3) and V2C (3, 4) given as float64 bytes (cached: the frames of a
+    dataset share one camera)."""
+    p2, r0, v2c = (np.frombuffer(matrix) for matrix in (p2, r0, v2c))
+    matrices = {"P0": p2, "P1": p2, "P2": p2, "P3": p2, "R0_rect": r0, "Tr_velo_to_cam": v2c,
+                "Tr_imu_to_velo": np.eye(3, 4).ravel()}
+    return "".join(f"{key}: " + " ".join(f"{v:.12e}" for v in matrix.tolist()) + "\n"
+                   for key, matrix in matrices.items())
 
 
 # ---------------------------------------------------------------------------------------------------- ImageSets

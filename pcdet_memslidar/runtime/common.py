@@ -2,12 +2,13 @@
 from __future__ import annotations
 
 import logging
-import os
 import random
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from pcdet_memslidar.utils.cores import available_cores
 
 
 def set_random_seed(seed: int) -> None:
@@ -17,11 +18,6 @@ def set_random_seed(seed: int) -> None:
     torch.manual_seed(seed)
     torch.backends.cudnn.deterministic = True
     torch.backends.cudnn.benchmark = False
-
-
-def available_cores() -> int:
-    """CPU cores this process may run on (its affinity mask, not the machine's count)."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def set_torch_threads(local_world_size: int = 1) -> int:

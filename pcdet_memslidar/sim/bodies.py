@@ -14,9 +14,10 @@ import functools
 from dataclasses import dataclass
 from pathlib import Path
 
-import numba
 import numpy as np
 from scipy.spatial import ConvexHull
+
+from pcdet_memslidar.utils.compiled import kernel
 
 BANK_PATH = Path(__file__).resolve().parents[1] / "assets" / "body_bank.npz"
 LODS = ("coarse", "medium", "fine", "full")
@@ -125,7 +126,7 @@ class BodyBank:
                             np.ascontiguousarray(transforms.transpose(1, 2, 0)))
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def _posed_boxes(rest, vertex_part, shape, transforms):
     """(n, 6) boxes of the vertices rest (S, U, 3) of parts vertex_part (U,) of bodies shape (n,) moved by their
     part transforms (n, parts, 12)."""

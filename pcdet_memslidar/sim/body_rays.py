@@ -15,13 +15,13 @@ matrices [R | t] (row-major) from a part's rest frame to the body frame.
 """
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from pcdet_memslidar.sim.motion import WALK_SPEED_FULL
+from pcdet_memslidar.utils.compiled import kernel
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@kernel(inline="always")
 def _crosses(ox, oy, oz, dx, dy, dz, inverse_x, inverse_y, inverse_z, box) -> bool:
     """True if the ray origin + t direction, t >= 0, passes through the box (6,) (slab test; inverse_* = 1 /
     direction, used where the direction component is not 0)."""
@@ -38,7 +38,7 @@ def _crosses(ox, oy, oz, dx, dy, dz, inverse_x, inverse_y, inverse_z, box) -> bo
     return leave >= enter
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, angular_key, angular_order,
                     azimuth_bins):
     """Ray (n,) and person (n,) of each ray that can reach a person.
@@ -98,7 +98,7 @@ def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, an
     return ray, person
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def part_rays(ray, person, ray_time, origin, directions, sample_times, samples, heading_cos, heading_sin, shape,
               phase_steps, transforms, body_box, part_box, rest_box, offset):
     """The rays of n candidate pairs that pass through a body part, in the part's rest frame in the body scene.
@@ -183,7 +183,7 @@ def part_rays(ray, person, ray_time, origin, directions, sample_times, samples, 
     return pair_out[:count], geometry_out[:count], rays_out[:count]
 
 
-@numba.njit(cache=True, nogil=True)
+@kernel
 def nearest_body_hits(pair, geometry, rays, t_hit, hit_geometry, primitive, normal, ray, person, pulses, max_range,
                       material, material_start, person_reflectivity, ray_range, cos_incidence, reflectivity,
                       person_hit, unoccluded, changed):

@@ -167,7 +167,6 @@ class Caster:
         if beam_divergence_rad > 0:
             rays.extend(_subray_directions(self.pulse_directions, beam_divergence_rad))
         self.directions = np.concatenate(rays)  # (R, 3), R = P or P * (1 + SUBRAYS); pulse of ray r = r % P
-        self.direction_rows = np.ascontiguousarray(self.directions.T)  # (3, R)
         self.time_offset = np.tile(np.asarray(time_offset, dtype=np.float64), len(rays))
         self.has_subrays = len(rays) > 1
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.writer import parse_shard, simulate_dataset
+from pcdet_memslidar.utils.cores import available_cores
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -13,7 +14,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=None, help="number of frames (default: the preset's)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: data/memslidar/<domain>)")
     parser.add_argument("--seed", type=int, default=0, help="dataset seed; same seed -> byte-identical files")
-    parser.add_argument("--workers", type=int, default=1, help="parallel processes")
+    parser.add_argument("--workers", type=int, default=available_cores(),
+                        help="worker processes (default: the cores this process may use, here %(default)s); each "
+                             "takes about 2 s to start; 1 = in this process, two frames at a time in threads")
     parser.add_argument("--shard", default="0/1", help="I/N: make only frames with index %% N == I")
 
 

@@ -22,6 +22,7 @@ from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
 from pcdet_memslidar.sim.scenes import get_scene
 from pcdet_memslidar.sim.sensor import SensorModel, get_sensor
+from pcdet_memslidar.utils.compiled import kernel
 
 
 @dataclass
@@ -79,11 +80,7 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     start = time.perf_counter()
     pulse, measured, intensity = sensor.returns(hits.range, hits.cos_incidence, hits.reflectivity, rng,
                                                 hits.edge_range)
-    points = np.empty((len(pulse), 4), dtype=np.float32)
-    for k in range(3):
-        points[:, k] = caster.origin[k] + caster.direction_rows[k].take(pulse) * measured
-    points[:, 3] = intensity
-    time_offset = caster.time_offset.take(pulse).astype(np.float32)
+    points, time_offset = _points(caster.origin, caster.directions, caster.time_offset, pulse, measured, intensity)
     seconds["sensor"] = time.perf_counter() - start
     # labels from the simulator state
     start = time.perf_counter()
@@ -93,6 +90,21 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     boxes, names, records = label_people(bank, lod, people, label_time_s, returned, hit, hits.unoccluded)
     seconds["labels"] = time.perf_counter() - start
     return points, time_offset, boxes, names, records
+
+
+@kernel
+def _points(origin, directions, pulse_time, pulse, range_m, intensity):
+    """points (n, 4) float32 [origin + range_m x direction, intensity] and time offsets (n,) float32 [s] of the
+    returns of pulses pulse (n,) (origin (3,), directions (P, 3), pulse_time (P,) [s], range_m (n,) [m],
+    intensity (n,))."""
+    points = np.empty((len(pulse), 4), dtype=np.float32)
+    time_offset = np.empty(len(pulse), dtype=np.float32)
+    for i in range(len(pulse)):
+        for k in range(3):
+            points[i, k] = origin[k] + directions[pulse[i], k] * range_m[i]
+        points[i, 3] = intensity[i]
+        time_offset[i] = pulse_time[pulse[i]]
+    return points, time_offset
 
 
 def simulate_frame(preset: DomainPreset, seed: int, index: int, threads: int = 0,

@@ -109,6 +109,8 @@ def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: i
     """Make frames 0..frames-1 of `preset` (those of `shard` (I, N): index % N == I) under `out`.
 
     Returns dict(written, skipped, points, complete): complete = all frames exist and ImageSets are written."""
+    if workers < 1:
+        raise ConfigError(f"--workers must be at least 1 (1 = in this process), got {workers}")
     root = Path(out)
     settings = domain_settings(preset, seed)
     _check_settings(root, settings)

@@ -4,7 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
 from pcdet_memslidar.sim.bodies import load_body_bank
@@ -125,3 +125,6 @@ def test_same_seed_gives_byte_identical_files_whatever_workers_and_shards(tmp_pa
     # other settings into the same folder: refused, naming the file
     with pytest.raises(DataFormatError, match="simulation.json.*other settings"):
         simulate_dataset(preset, 4, tmp_path / "b", seed=8, progress=False)
+    with pytest.raises(ConfigError, match="--workers must be at least 1"):
+        simulate_dataset(preset, 4, tmp_path / "c", workers=0, progress=False)
+    assert not (tmp_path / "c").exists()

@@ -89,3 +89,28 @@ def test_same_seed_same_result_and_unknown_preset():
         np.testing.assert_array_equal(a, b)
     with pytest.raises(ConfigError, match="unknown sensor preset 'lidar'"):
         get_sensor("lidar")
+
+
+def test_detection_threshold_and_range_limits_are_exact_at_their_edges():
+    """Hard cases with exact answers (no noise, no dropout, a hard power step): the received power at 2 m of a
+    white surface seen head-on is 1 / 2^2 = 0.25, exactly the threshold, so it returns (margin 0 in natural logs);
+    a hair farther, at zero reflectivity (log 0 = -inf) or at grazing incidence (cos 0) it does not; a NaN or inf
+    true range is no hit; ranges exactly at the minimum and maximum are kept."""
+    sensor = dataclasses.replace(get_sensor("calibrated"), range_sigma_m=0.0, range_sigma_per_m=0.0, base_dropout=0.0,
+                                 power_threshold=0.25, power_softness=0.0, range_exponent=2.0, intensity_jitter=0.0,
+                                 min_range_m=1.3, max_range_m=150.0)
+    true_range = np.array([2.0, 2.0000001, 2.0, 2.0, np.nan, np.inf, 1.3])
+    reflectivity = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0])
+    cos_incidence = np.array([1.0, 1.0, 1.0, 0.0, 1.0, 1.0, -1.0])  # the sign of cos is ignored
+    with np.errstate(all="raise"):
+        pulse, range_m, intensity = sensor.returns(true_range, cos_incidence, reflectivity, np.random.default_rng(0))
+    np.testing.assert_array_equal(pulse, [0, 6])
+    np.testing.assert_array_equal(range_m, [2.0, 1.3])
+    expected = [round(375.0 * (2.0 / 5.0) ** -0.28), round(375.0 * (1.3 / 5.0) ** -0.28)]  # 485; 547 clips to 511
+    np.testing.assert_array_equal(intensity, [expected[0], min(expected[1], 511)])
+
+    limits = dataclasses.replace(sensor, power_threshold=0.0)
+    true_range = np.array([1.3, np.nextafter(1.3, 0.0), 150.0, np.nextafter(150.0, np.inf)])
+    pulse, range_m, _ = limits.returns(true_range, np.ones(4), np.ones(4), np.random.default_rng(0))
+    np.testing.assert_array_equal(pulse, [0, 2])
+    np.testing.assert_array_equal(range_m, [1.3, 150.0])
