@@ -12,7 +12,8 @@ whole-frame time to pure-cast time:
 - one process: frames/s of `simulate_dataset` in one process (two frames at a time in threads, Open3D on all
   cores; Python's interpreter lock serialises their Python parts) against the pure cast on all cores;
 - workers: `simulate_dataset` with --workers processes once they have built their casters (each process on one
-  core) against the pure cast on all cores; frames/s with their start-up is shown too.
+  core) against the pure cast on all cores; their frames/s once started, and the seconds their start-up adds
+  (imports, casters and compiled kernels loaded in each process).
 Then the ms per frame of each stage on one core. Runs with glibc keeping freed memory, as simulate_dataset does;
 writes into memory (/dev/shm) unless --where names another folder.
 Part 2: for the frames of the paper target, every body detail level x time handling against the finest setting
@@ -156,8 +157,8 @@ def speed(preset, frames: int, workers: int, where: str | None = None, seed: int
         parallel = time.perf_counter() - start
         started = started_seconds(preset, frames, workers, KittiLayout(Path(folder) / "started"), fingerprint, seed)
     return dict(fps=frames / whole, rays_per_s=rays / whole, core_ratio=core / pure_core, ratio=whole / pure,
-                people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / parallel,
-                parallel_ratio=started / pure, core_ms=1000 * core / frames, pure_core_ms=1000 * pure_core / frames,
+                people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / started,
+                start_up_s=parallel - started, parallel_ratio=started / pure, core_ms=1000 * core / frames, pure_core_ms=1000 * pure_core / frames,
                 whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames,
                 **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
 
@@ -213,14 +214,14 @@ def main() -> None:
     keep_freed_memory()  # as simulate_dataset does
     target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))
     workers = f"x{args.workers} workers"
-    print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'whole/pure, one core':>21s} "
-          f"{'whole/pure, one process':>24s} {'frames/s ' + workers:>19s} {'whole/pure ' + workers:>21s}")
+    print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'frames/s ' + workers:>19s} "
+          f"{'start-up s':>10s}   whole/pure: {'one core':>8s} {'one process':>11s} {workers:>11s}")
     results = {}
     for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
         r = results[preset.name] = speed(preset, args.frames, args.workers, args.where)
         print(f"{preset.name:34s} {r['people_per_frame']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} "
-              f"{r['rays_per_s'] / 1e6:8.2f} {r['core_ratio']:21.2f} {r['ratio']:24.2f} {r['parallel_fps']:19.1f} "
-              f"{r['parallel_ratio']:21.2f}")
+              f"{r['rays_per_s'] / 1e6:8.2f} {r['parallel_fps']:19.1f} {r['start_up_s']:10.1f}   {'':11s} "
+              f"{r['core_ratio']:8.2f} {r['ratio']:11.2f} {r['parallel_ratio']:11.2f}")
     print(f"\nms per frame on one core ('casting' includes 'cast_rays', the time inside Open3D; 'pure cast': all rays "
           f"of the frame against one prebuilt scene)\n{'domain':34s} " + " ".join(f"{s:>9s}" for s in STAGES)
           + f" {'whole':>9s} {'pure cast':>9s}")
