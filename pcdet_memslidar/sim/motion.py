@@ -10,9 +10,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcdet_memslidar.utils.compiled import kernel
+
 SAMPLE_DT = 0.02  # s between trajectory samples
 WALK_SPEED_FULL = 0.6  # m/s at and above which the body is in the full walking gait (below: blend to standing)
 BEHAVIOURS = ("walk", "turn", "stop_and_go", "stand")
+_TURN, _STOP_AND_GO, _STAND = (BEHAVIOURS.index(name) for name in ("turn", "stop_and_go", "stand"))
+RAMP_S = 0.6  # s to stop or to start walking again
 
 
 @dataclass(frozen=True)
@@ -96,8 +100,10 @@ class TrajectoryStack:
         return np.stack([x, y], axis=1), heading, cycles, np.clip(speed / WALK_SPEED_FULL, 0.0, 1.0)
 
 
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
+@kernel(inline="always")
+def _smoothstep(x: float) -> float:
+    """0 below 0, 1 above 1 and 3 x^2 - 2 x^3 between: a ramp with zero slope at both ends."""
+    x = min(max(x, 0.0), 1.0)
     return x * x * (3.0 - 2.0 * x)
 
 
@@ -163,22 +169,12 @@ def make_trajectories(behaviour: np.ndarray, events: np.ndarray, anchor_xy: np.n
     if unknown:
         raise ValueError(f"unknown behaviour '{min(unknown)}': choose one of {BEHAVIOURS}")
     times = _sample_times(frame_period_s, margin_s)
-    centre = frame_period_s / 2
+    code = (behaviour[:, None] == np.array(BEHAVIOURS)).argmax(axis=1)
     low, width = _event_range(frame_period_s)
-    event_time, event_length, turn, direction, spin = (low + width * events).T[:, :, None]
-    turning, stopping, standing = (behaviour[:, None] == name for name in ("turn", "stop_and_go", "stand"))
-    sign = np.where(direction < 0.5, 1.0, -1.0)
-    # turn: the heading swings by sign * turn within event_length / 2; stop_and_go: the speed ramps down, stays 0
-    # for event_length and ramps up again; stand: no motion, spinning on the spot half the time
-    ramp = 0.6  # s to stop or to start
-    since = times - event_time
-    rise, fall = _smoothstep(np.stack([since / np.where(turning, 0.5 * event_length, ramp),
-                                       (since - ramp - event_length) / ramp]))
-    cruise = np.where(standing, 0.0, np.asarray(speed, dtype=np.float64)[:, None])  # (k, 1) [m/s]
-    speed_profile = np.where(stopping, cruise * (1.0 - rise * (1.0 - fall)), cruise)
-    spin_rate = np.where(standing & (spin < 0.5), sign * 0.4, 0.0)  # rad/s
-    heading_profile = np.asarray(heading, dtype=np.float64)[:, None] + np.where(
-        turning, sign * turn * (rise - 0.5), spin_rate * (times - centre))
+    heading_profile, speed_profile = _profiles(code, np.asarray(events, dtype=np.float64),
+                                               np.asarray(heading, dtype=np.float64),
+                                               np.asarray(speed, dtype=np.float64), times, frame_period_s / 2, low,
+                                               width)
     # positions: the velocity integrated from mid-frame, where they pass the anchor; gait cycles: the distance
     # walked (the speed integrated; frozen while standing) in strides; the speed is the planned profile
     from_start, from_centre = _integrals(frame_period_s, margin_s)
@@ -186,6 +182,34 @@ def make_trajectories(behaviour: np.ndarray, events: np.ndarray, anchor_xy: np.n
     x, y = np.asarray(anchor_xy, dtype=np.float64).T[:, :, None] + velocity @ from_centre
     cycles = (speed_profile @ from_start) / np.asarray(stride_m)[:, None]
     return TrajectoryStack(times, np.stack([x, y, heading_profile, cycles, speed_profile]))
+
+
+@kernel
+def _profiles(code, events, heading, speed, times, centre, low, width):
+    """Heading [rad] and speed [m/s] profiles (k, n) of k people at the sample times (n,) [s], as make_trajectories
+    describes them: code (k,) index of each behaviour in BEHAVIOURS, events (k, 5) uniform draws scaled to
+    low (5,) + width (5,) x draw, heading (k,) [rad] and speed (k,) [m/s] planned, centre [s] mid-frame.
+
+    turn: the heading swings by sign x turn within event_length / 2; stop_and_go: the speed ramps down, stays 0
+    for event_length and ramps up again; stand: no motion, spinning on the spot half the time."""
+    heading_profile = np.empty((len(code), len(times)))
+    speed_profile = np.empty((len(code), len(times)))
+    for i in range(len(code)):
+        event_time, event_length = low[0] + width[0] * events[i, 0], low[1] + width[1] * events[i, 1]
+        turn, direction, spin = (low[2] + width[2] * events[i, 2], low[3] + width[3] * events[i, 3],
+                                 low[4] + width[4] * events[i, 4])
+        turning, stopping, standing = code[i] == _TURN, code[i] == _STOP_AND_GO, code[i] == _STAND
+        sign = 1.0 if direction < 0.5 else -1.0
+        cruise = 0.0 if standing else speed[i]
+        spin_rate = sign * 0.4 if standing and spin < 0.5 else 0.0  # rad/s
+        for j in range(len(times)):
+            since = times[j] - event_time
+            rise = _smoothstep(since / (0.5 * event_length if turning else RAMP_S))
+            fall = _smoothstep((since - RAMP_S - event_length) / RAMP_S)
+            speed_profile[i, j] = cruise * (1.0 - rise * (1.0 - fall)) if stopping else cruise
+            heading_profile[i, j] = heading[i] + (sign * turn * (rise - 0.5) if turning
+                                                  else spin_rate * (times[j] - centre))
+    return heading_profile, speed_profile
 
 
 def make_trajectory(behaviour: str, rng: np.random.Generator, anchor_xy: np.ndarray, heading: float,

@@ -19,6 +19,7 @@ from pcdet_memslidar.sim.bodies import BodyBank
 from pcdet_memslidar.sim.domains import DomainPreset
 from pcdet_memslidar.sim.motion import SAMPLE_DT, Trajectory, TrajectoryStack, make_trajectories
 from pcdet_memslidar.sim.scenes import Scene
+from pcdet_memslidar.utils.compiled import kernel
 
 BODY_RADIUS_M = 0.35  # clearance of a body's centre from obstacle footprints
 GROUP_SPACING_M = 0.75  # lateral distance of companions walking side by side
@@ -30,8 +31,6 @@ MARGIN_S = SAMPLE_DT
 VEST_REFLECTIVITY = 0.95  # fluorescent fabric with retro-reflective stripes
 _REFLECTIVITY_LOW = np.array([0.3, 0.05, 0.05, 0.05])  # skin, upper clothing, lower clothing, shoes: uniform
 _REFLECTIVITY_WIDTH = np.array([0.55, 0.8, 0.5, 0.3]) - _REFLECTIVITY_LOW
-# [a, b]: person a (candidate a // 2) belongs to an earlier candidate than person b
-_EARLIER = np.arange(2 * MAX_TRIES)[:, None] // 2 < np.arange(2 * MAX_TRIES) // 2
 
 
 @dataclass(frozen=True)
@@ -85,7 +84,7 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
     count = int(rng.integers(preset.people[0], preset.people[1] + 1))
     # candidate c: a leader (person 2 c) and a companion (person 2 c + 1) who comes along if it is a group
     x_min, x_max = visible_x_range(mount, vfov_deg, scene)
-    grouped = (rng.random(MAX_TRIES) < preset.group_probability).tolist()
+    grouped = rng.random(MAX_TRIES) < preset.group_probability
     x = rng.uniform(x_min, x_max, MAX_TRIES)
     y = rng.uniform(-1.0, 1.0, MAX_TRIES) * (x * math.tan(math.radians(hfov_deg / 2)) + 1.0)
     side = (len(scene.walk_headings) * rng.random(MAX_TRIES)).astype(np.intp)  # uniform, as rng.integers
@@ -116,44 +115,45 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
     return people
 
 
-def _accepted(paths: np.ndarray, grouped: list[bool], count: int, scene: Scene,
+def _accepted(paths: np.ndarray, grouped: np.ndarray, count: int, scene: Scene,
               separation_m: float) -> list[range]:
     """The members of the candidates accepted in order until they make up `count` people, given the paths
     (2, F, m) [m] (x and y during the frame) of m people (person 2 c + member of candidate c): all clear of
     obstacles and of those accepted before (a group of two only where two people are still missing)."""
-    blocked, clashes = _conflicts(paths, scene, separation_m)
-    accepted: list[range] = []
-    placed: set[int] = set()
-    for candidate in range(paths.shape[2] // 2):
-        if len(placed) >= count:
+    sizes = _accepted_sizes(paths, np.asarray(grouped, dtype=np.bool_), count,
+                            scene.obstacles[:, :2].T - BODY_RADIUS_M, scene.obstacles[:, 2:].T + BODY_RADIUS_M,
+                            separation_m)
+    return [range(2 * candidate, 2 * candidate + size) for candidate, size in enumerate(sizes.tolist()) if size]
+
+
+@kernel
+def _accepted_sizes(paths, grouped, count, obstacle_low, obstacle_high, separation_m):
+    """(m // 2,) people accepted of each candidate (0: not accepted) of the paths (2, F, m) [m], grouped (m // 2,)
+    bool, obstacle footprints grown by the body (2, O) low and high x, y [m] (a path enters one where it is strictly
+    inside), people closer than separation_m [m] at some sample clash."""
+    frames, people = paths.shape[1], paths.shape[2]
+    sizes = np.zeros(people // 2, np.int64)
+    placed = np.empty(people, np.int64)
+    count_placed = 0
+    for candidate in range(people // 2):
+        if count_placed >= count:
             break
-        members = range(2 * candidate, 2 * candidate + (2 if grouped[candidate] and count - len(placed) >= 2 else 1))
-        if not any(blocked[p] or not placed.isdisjoint(clashes.get(p, ())) for p in members):
-            accepted.append(members)
-            placed.update(members)
-    return accepted
-
-
-def _conflicts(paths: np.ndarray, scene: Scene, separation_m: float) -> tuple[list[bool], dict[int, list[int]]]:
-    """Of the paths (2, F, m) [m] (x and y during the frame) of m people (person 2 c + member of candidate c):
-    whether each enters an obstacle's footprint (m), and for each person (key) the people of earlier candidates
-    who come closer than separation_m. Exact tests only where bounding boxes come close."""
-    low, high = paths.min(1), paths.max(1)  # (2, m)
-    # obstacle footprints grown by the body, tested against the paths whose boxes overlap them
-    obstacle_low = scene.obstacles[:, :2].T - BODY_RADIUS_M  # (2, O)
-    obstacle_high = scene.obstacles[:, 2:].T + BODY_RADIUS_M
-    overlap = (high[:, :, None] > obstacle_low[:, None]) & (low[:, :, None] < obstacle_high[:, None])
-    person, obstacle = np.nonzero(overlap[0] & overlap[1])
-    path = paths[:, :, person]
-    inside = (path > obstacle_low[:, None, obstacle]) & (path < obstacle_high[:, None, obstacle])
-    blocked = np.zeros(paths.shape[2], dtype=bool)
-    blocked[person[(inside[0] & inside[1]).any(0)]] = True
-    # separations, tested for the people of earlier and later candidates whose boxes come close
-    near = (low[:, None] - high[:, :, None] < separation_m) & (low[:, :, None] - high[:, None] < separation_m)
-    earlier, later = np.nonzero(near[0] & near[1] & _EARLIER[:paths.shape[2], :paths.shape[2]])
-    gap = paths[:, :, earlier] - paths[:, :, later]
-    close = (gap * gap).sum(0).min(0) < separation_m * separation_m
-    clashes: dict[int, list[int]] = {}
-    for person, other in zip(later[close].tolist(), earlier[close].tolist()):
-        clashes.setdefault(person, []).append(other)
-    return blocked.tolist(), clashes
+        members = 2 if grouped[candidate] and count - count_placed >= 2 else 1
+        clear = True
+        for p in range(2 * candidate, 2 * candidate + members):
+            for o in range(obstacle_low.shape[1]):
+                for f in range(frames):
+                    x, y = paths[0, f, p], paths[1, f, p]
+                    if obstacle_low[0, o] < x < obstacle_high[0, o] and obstacle_low[1, o] < y < obstacle_high[1, o]:
+                        clear = False
+            for q in placed[:count_placed]:
+                for f in range(frames):
+                    dx, dy = paths[0, f, q] - paths[0, f, p], paths[1, f, q] - paths[1, f, p]
+                    if dx * dx + dy * dy < separation_m * separation_m:
+                        clear = False
+        if clear:
+            sizes[candidate] = members
+            for p in range(2 * candidate, 2 * candidate + members):
+                placed[count_placed] = p
+                count_placed += 1
+    return sizes
