@@ -39,7 +39,7 @@ def _crosses(ox, oy, oz, dx, dy, dz, inverse_x, inverse_y, inverse_z, box) -> bo
 
 
 @kernel
-def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, angular_key, angular_order,
+def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, angular_key, angular_order, cell_start,
                     azimuth_bins):
     """Ray (n,) and person (n,) of each ray that can reach a person.
 
@@ -47,7 +47,9 @@ def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, an
     sample_times (m,) evenly spaced [s] and samples (5, k, m) the people's trajectories (as TrajectoryStack);
     reach (k,) [m] horizontal reach of each body around its trajectory point; height (k,) [m] its height;
     origin (3,) sensor position; angular_key (R,) sorted keys slice * azimuth_bins + azimuth bin + 0.5 +
-    elevation / 4 of the rays angular_order (R,) (azimuth bins of 2 pi / azimuth_bins from -pi, elevation in rad).
+    elevation / 4 of the rays angular_order (R,) (azimuth bins of 2 pi / azimuth_bins from -pi, elevation in rad);
+    cell_start (J * azimuth_bins + 1,) index of the first key of each (slice, azimuth bin) cell in angular_key (the
+    searches stay inside one cell's run of keys, which is in the cache).
     """
     people, slices, last = samples.shape[1], pose_times.shape[1], len(sample_times) - 1
     sample_dt = sample_times[1] - sample_times[0]
@@ -83,9 +85,11 @@ def candidate_pairs(pose_times, sample_times, samples, reach, height, origin, an
             bins = min(int(np.floor((middle + half_width + np.pi) / bin_rad)) - first_bin + 1, azimuth_bins)
             # one run of the angular index per azimuth bin
             for b in range(first_bin, first_bin + bins):
-                base = j * azimuth_bins + b % azimuth_bins + 0.5
-                starts[runs] = np.searchsorted(angular_key, base + low / 4)
-                counts[runs] = np.searchsorted(angular_key, base + high / 4, side="right") - starts[runs]
+                cell = j * azimuth_bins + b % azimuth_bins
+                first_key = cell_start[cell]
+                keys = angular_key[first_key:cell_start[cell + 1]]
+                starts[runs] = first_key + np.searchsorted(keys, cell + 0.5 + low / 4)
+                counts[runs] = first_key + np.searchsorted(keys, cell + 0.5 + high / 4, side="right") - starts[runs]
                 owners[runs] = k
                 runs += 1
     ray = np.empty(counts[:runs].sum(), np.int64)

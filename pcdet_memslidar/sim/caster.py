@@ -193,6 +193,7 @@ class Caster:
         key = ray_slice * AZIMUTH_BINS + azimuth_bin + 0.5 + np.arcsin(np.clip(self.directions[:, 2], -1.0, 1.0)) / 4
         self.angular_order = np.argsort(key, kind="stable")
         self.angular_key = key[self.angular_order]
+        self.cell_start = np.searchsorted(self.angular_key, np.arange(self.slice_times.shape[1] * AZIMUTH_BINS + 1))
 
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
                    phase_steps: int | None = None) -> FrameHits:
@@ -214,7 +215,7 @@ class Caster:
         shape = np.array([someone.shape for someone in people])
         ray, person = candidate_pairs(_pose_time(self.slice_times, time_step_s), trajectories.times,
                                       trajectories.samples, bodies.reach[shape], bodies.height[shape], self.origin,
-                                      self.angular_key, self.angular_order, AZIMUTH_BINS)
+                                      self.angular_key, self.angular_order, self.cell_start, AZIMUTH_BINS)
         heading = trajectories.samples[2]
         pair, geometry, rays = part_rays(
             ray, person, _pose_time(self.time_offset.take(ray), time_step_s), self.origin, self.directions,
