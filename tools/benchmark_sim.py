@@ -46,20 +46,6 @@ from pcdet_memslidar.utils.open3d import import_open3d
 TIME_HANDLING = {"per pulse": 0.0, "10 ms slices": 0.01, "50 ms slices": 0.05, "one instant": None}
 
 
-def posed_world_triangles(bank, lod, person, time_s) -> np.ndarray:
-    """(T, 3, 3) triangles of `person` posed at `time_s`, in the ground frame."""
-    xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
-    transforms = bank.part_transforms(np.array([person.shape]), phase, walk)[:, 0].T.reshape(-1, 3, 4)
-    mesh = bank.meshes[lod]
-    rest = mesh.rest_vertices[person.shape][mesh.triangles]  # (T, 3, 3)
-    t = transforms[mesh.triangle_part]  # (T, 3, 4)
-    body = np.einsum("tij,tkj->tki", t[:, :, :3], rest) + t[:, None, :, 3]
-    c, s = np.cos(heading[0]), np.sin(heading[0])
-    world = body @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T
-    world[..., :2] += xy[0]
-    return world
-
-
 def pure_cast_seconds(caster, scene_name, people, bank, lod, threads: int, repeats=3) -> float:
     """Seconds to cast all rays of a frame once, on `threads` threads (0: all cores), against a prebuilt scene of
     the static world + posed people."""
@@ -68,7 +54,8 @@ def pure_cast_seconds(caster, scene_name, people, bank, lod, threads: int, repea
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
     for person in people:
-        world = posed_world_triangles(bank, lod, person, caster.frame_period_s / 2).reshape(-1, 3)
+        xy, heading, phase, walk = person.trajectory.state(np.array([caster.frame_period_s / 2]))
+        world = bank.posed_triangles(lod, person.shape, xy[0], heading[0], phase[0], walk[0]).reshape(-1, 3)
         scene.add_triangles(o3d.core.Tensor(world.astype(np.float32)),
                             o3d.core.Tensor(np.arange(len(world), dtype=np.uint32).reshape(-1, 3)))
     rays = o3d.core.Tensor(np.concatenate([np.broadcast_to(caster.origin, caster.directions.shape),
@@ -158,7 +145,8 @@ def speed(preset, frames: int, workers: int, where: str | None = None, seed: int
         started = started_seconds(preset, frames, workers, KittiLayout(Path(folder) / "started"), fingerprint, seed)
     return dict(fps=frames / whole, rays_per_s=rays / whole, core_ratio=core / pure_core, ratio=whole / pure,
                 people_per_frame=people_count / frames, rays=rays / frames, parallel_fps=frames / started,
-                start_up_s=parallel - started, parallel_ratio=started / pure, core_ms=1000 * core / frames, pure_core_ms=1000 * pure_core / frames,
+                start_up_s=parallel - started, parallel_ratio=started / pure, core_ms=1000 * core / frames,
+                pure_core_ms=1000 * pure_core / frames,
                 whole_ms=1000 * whole / frames, pure_ms=1000 * pure / frames,
                 **{stage: 1000 * seconds / frames for stage, seconds in stages.items()})
 

@@ -166,8 +166,8 @@ def plot_frame(path: str | Path, points: np.ndarray, gt_boxes: np.ndarray, title
     bev.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal",
             title=f"{title}: {len(gt_boxes)} ground-truth boxes (blue)" + (f", {len(predictions)} predicted (green)"
                                                                           if len(predictions) else ""))
-    side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", ylim=(SIDE_Z[0], max(SIDE_Z[1], points[:, 2].max(initial=0))),
-             aspect="equal", xlim=bev.get_xlim())
+    side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=bev.get_xlim(),
+             ylim=(SIDE_Z[0], max(SIDE_Z[1], points[:, 2].max(initial=0))))
     return _save(figure, path)
 
 

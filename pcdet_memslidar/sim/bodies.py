@@ -84,39 +84,39 @@ class BodyBank:
         component-major."""
         return np.ascontiguousarray(self.transforms.reshape(-1, 12).T)
 
-    def gait_pose(self, phase: np.ndarray, phase_steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Bank gait pose lower (n,) of gait phases (n,) [cycles] (any real, taken mod 1) and the blend (n,) in
-        [0, 1) from it towards pose (lower + 1) % GAIT_PHASES; phase_steps: quantise the phase to that many steps
-        per cycle first."""
-        cycle = np.mod(np.asarray(phase, dtype=np.float64), 1.0) * self.gait_phases
-        if phase_steps is not None:
-            step = self.gait_phases / phase_steps
-            cycle = np.mod(np.round(cycle / step) * step, self.gait_phases)
-        return np.floor(cycle).astype(np.int64) % self.gait_phases, cycle - np.floor(cycle)
+    def part_transforms(self, shape: np.ndarray, phase: np.ndarray, walk_weight: np.ndarray) -> np.ndarray:
+        """(12, n, parts) part transforms of n bodies as flattened 3x4 matrices [R | t] (row-major), component-major
+        so that numpy loops run over the bodies.
 
-    def part_transforms(self, shape: np.ndarray, phase: np.ndarray, walk_weight: np.ndarray,
-                        phase_steps: int | None = None, part: np.ndarray | None = None) -> np.ndarray:
-        """Part transforms of n bodies as flattened 3x4 matrices [R | t] (row-major), component-major so that
-        numpy loops run over the bodies: (12, n, parts), or (12, n) for one given part per body.
-
-        shape (n,) int; phase (n,) gait phase in cycles (any real, taken mod 1); walk_weight (n,) in [0, 1]:
-        1 = walking, 0 = standing. phase_steps: quantise the phase to that many steps per cycle (nearest bank
-        entry) instead of blending neighbouring phases. part (n,) int: only that part of each body.
-        """
-        shape = np.asarray(shape, dtype=np.int64)
-        lower, blend = self.gait_pose(phase, phase_steps)
-        weight = np.clip(np.asarray(walk_weight, dtype=np.float64), 0.0, 1.0)
+        shape (n,) int; phase (n,) gait phase in cycles (any real, taken mod 1): the bank poses on either side,
+        blended; walk_weight (n,) in [0, 1]: 1 = walking, 0 = standing."""
+        shape = np.asarray(shape, dtype=np.int64)[:, None]
+        cycle = np.mod(np.asarray(phase, dtype=np.float64), 1.0)[:, None] * self.gait_phases
+        lower, blend = np.floor(cycle).astype(np.int64) % self.gait_phases, cycle - np.floor(cycle)
+        weight = np.clip(np.asarray(walk_weight, dtype=np.float64), 0.0, 1.0)[:, None]
         parts = len(self.part_names)
-        if part is None:  # every part of each body: broadcast the per-body values over (n, parts)
-            part = np.arange(parts)
-            shape, lower, blend, weight = shape[:, None], lower[:, None], blend[:, None], weight[:, None]
-        first = (shape * (self.gait_phases + 1)) * parts + part  # column of pose 0 of the body's part
+        first = (shape * (self.gait_phases + 1)) * parts + np.arange(parts)  # column of pose 0 of each part
 
         def pose(index: np.ndarray) -> np.ndarray:
             return np.take(self.transform_rows, first + index * parts, axis=1)
 
         walking = (1.0 - blend) * pose(lower) + blend * pose((lower + 1) % self.gait_phases)
         return weight * walking + (1.0 - weight) * pose(np.full_like(lower, self.gait_phases))
+
+    def posed_triangles(self, lod: str, shape: int, xy: np.ndarray, heading: float, phase: float,
+                        walk_weight: float) -> np.ndarray:
+        """(T, 3, 3) [m] the triangles of body `shape` at detail level `lod` in the ground frame: posed at gait
+        `phase` [cycles] with `walk_weight`, turned to `heading` [rad] and standing at `xy` (2,) [m]."""
+        transforms = self.part_transforms(np.array([shape]), np.array([phase]), np.array([walk_weight]))
+        transforms = transforms[:, 0].T.reshape(-1, 3, 4)
+        mesh = self.meshes[lod]
+        rest = mesh.rest_vertices[shape][mesh.triangles].astype(np.float64)  # (T, 3, 3)
+        t = transforms[mesh.triangle_part]  # (T, 3, 4)
+        body = np.einsum("tij,tkj->tki", t[:, :, :3], rest) + t[:, None, :, 3]
+        c, s = np.cos(heading), np.sin(heading)
+        world = body @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+        world[..., :2] += xy
+        return world
 
     def posed_boxes(self, lod: str, shape: np.ndarray, transforms: np.ndarray) -> np.ndarray:
         """(n, 6) axis-aligned boxes [low xyz, high xyz] in the body frame of bodies `shape` (n,) posed by their

@@ -130,16 +130,8 @@ def test_detail_levels_hit_the_same_body(lod):
 
 def posed_body_triangles(bank, person, time_s):
     """(T * 3, 3) corners of the triangles of `person`'s 'fine' body posed at `time_s`, in the ground frame."""
-    mesh = bank.meshes["fine"]
     xy, heading, phase, walk = person.trajectory.state(np.array([time_s]))
-    transform = bank.part_transforms(np.array([person.shape]), phase, walk)[:, 0].T.reshape(-1, 3, 4)
-    transform = transform[mesh.triangle_part]
-    rest = mesh.rest_vertices[person.shape][mesh.triangles].astype(np.float64)
-    body = np.einsum("tij,tkj->tki", transform[:, :, :3], rest) + transform[:, None, :, 3]
-    c, s = np.cos(heading[0]), np.sin(heading[0])
-    world = body @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
-    world[..., :2] += xy[0]
-    return world.reshape(-1, 3)
+    return bank.posed_triangles("fine", person.shape, xy[0], heading[0], phase[0], walk[0]).reshape(-1, 3)
 
 
 @pytest.mark.parametrize("mount, placements", [
