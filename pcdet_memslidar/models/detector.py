@@ -10,7 +10,7 @@ from pcdet_memslidar.models.anchor_head import AnchorHeadSingle
 from pcdet_memslidar.models.backbone_2d import BaseBEVBackbone
 from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x, sparse_output_depth
 from pcdet_memslidar.models.map_to_bev import HeightCompression
-from pcdet_memslidar.models.post_processing import post_processing
+from pcdet_memslidar.models.post_processing import post_processing, size_limits
 from pcdet_memslidar.models.vfe import MeanVFE
 
 # OpenPCDet's registries: module NAME in the config -> class
@@ -41,6 +41,27 @@ def check_grid(model_cfg, grid_size) -> None:
         raise ConfigError(f"the voxel grid has {int(grid_size[0])} x {int(grid_size[1])} cells (x, y); SECOND with "
                           f"LAYER_STRIDES {list(model_cfg.BACKBONE_2D.LAYER_STRIDES)} needs multiples of {multiple}: "
                           f"change POINT_CLOUD_RANGE or VOXEL_SIZE")
+    head_stride = bev_output_stride(model_cfg.BACKBONE_2D)
+    for anchor in model_cfg.DENSE_HEAD.get("ANCHOR_GENERATOR_CONFIG", []):
+        if anchor["feature_map_stride"] != head_stride:
+            raise ConfigError(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: feature_map_stride is "
+                              f"{anchor['feature_map_stride']} but BACKBONE_2D (LAYER_STRIDES "
+                              f"{list(model_cfg.BACKBONE_2D.LAYER_STRIDES)}, UPSAMPLE_STRIDES "
+                              f"{list(model_cfg.BACKBONE_2D.UPSAMPLE_STRIDES)}) outputs stride {head_stride:g}: "
+                              f"set feature_map_stride {head_stride:g} or change UPSAMPLE_STRIDES")
+
+
+def bev_output_stride(backbone_2d_cfg) -> float:
+    """Voxels per cell of BaseBEVBackbone's output on VoxelBackBone8x's stride-8 map (the anchors' stride);
+    ConfigError when the levels it concatenates are upsampled to different strides."""
+    strides = 8 * np.cumprod(backbone_2d_cfg.get("LAYER_STRIDES", [1])).astype(np.float64)
+    upsample = [float(up) for up in backbone_2d_cfg.get("UPSAMPLE_STRIDES", [])]
+    levels = [float(stride / upsample[level] if level < len(upsample) else stride) for level, stride in enumerate(strides)]
+    if len(set(levels)) > 1:
+        raise ConfigError(f"BACKBONE_2D: LAYER_STRIDES {list(backbone_2d_cfg.LAYER_STRIDES)} with UPSAMPLE_STRIDES "
+                          f"{upsample} bring its levels to strides {levels}; they must meet at one stride")
+    extra = upsample[len(strides):]  # one more upsampling after the concatenation
+    return levels[0] / (extra[0] if extra else 1.0)
 
 
 class SECONDNet(nn.Module):
@@ -76,6 +97,9 @@ class SECONDNet(nn.Module):
             num_class=1 if head_cfg.get("CLASS_AGNOSTIC", False) else num_class, class_names=self.class_names,
             grid_size=grid_size, point_cloud_range=dataset.point_cloud_range, voxel_size=dataset.voxel_size,
             predict_boxes_when_training=False)
+        ratio_range = model_cfg.POST_PROCESSING.get("SIZE_RATIO_RANGE")
+        self.size_limits = None if ratio_range is None else size_limits(
+            head_cfg.ANCHOR_GENERATOR_CONFIG, self.class_names, ratio_range)
         self.module_list = []
         for name, module in zip(self.module_topology, (vfe, backbone_3d, map_to_bev, backbone_2d, dense_head)):
             self.add_module(name, module)
@@ -90,4 +114,4 @@ class SECONDNet(nn.Module):
         if self.training:
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
-        return post_processing(batch_dict, self.model_cfg.POST_PROCESSING)
+        return post_processing(batch_dict, self.model_cfg.POST_PROCESSING, self.size_limits)

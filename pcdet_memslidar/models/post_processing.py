@@ -1,21 +1,51 @@
-"""Scores and boxes per anchor -> final detections: score threshold, top-k, class-agnostic rotated NMS."""
+"""Scores and boxes per anchor -> final detections: implausible sizes dropped, score threshold, top-k,
+class-agnostic rotated NMS."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.iou import boxes_iou3d
 from pcdet_memslidar.geometry.nms import nms_rotated
 
 
-def class_agnostic_nms(box_scores: torch.Tensor, box_preds: torch.Tensor, nms_config, score_thresh=None):
+def size_limits(anchor_configs, class_names, ratio_range) -> torch.Tensor:
+    """(C, 2, 3) smallest and largest [dx, dy, dz] [m] a box of each class may have: its anchor sizes times
+    ratio_range [low, high] (POST_PROCESSING.SIZE_RATIO_RANGE); an object that is a person is never 20 x its
+    anchor, and a 50 m or 2 cm box is a saturated regression, not a detection."""
+    low, high = (float(v) for v in ratio_range)
+    if not 0 < low <= 1 <= high:
+        raise ConfigError(f"POST_PROCESSING.SIZE_RATIO_RANGE must be [low, high] with 0 < low <= 1 <= high, "
+                          f"got {list(ratio_range)}")
+    limits = []
+    for name in class_names:
+        sizes = [size for config in anchor_configs if config["class_name"] == name for size in config["anchor_sizes"]]
+        sizes = torch.tensor(sizes, dtype=torch.float32).view(-1, 3)
+        limits.append(torch.stack([sizes.min(dim=0).values * low, sizes.max(dim=0).values * high]))
+    return torch.stack(limits)
+
+
+def plausible(box_preds: torch.Tensor, labels: torch.Tensor, limits: torch.Tensor) -> torch.Tensor:
+    """(A,) bool: boxes (A, 7+) whose sizes lie within their class's limits (C, 2, 3) (labels 0-based);
+    NaN sizes are never plausible."""
+    bounds = limits.to(box_preds.device)[labels]  # (A, 2, 3)
+    sizes = box_preds[:, 3:6]
+    return ((sizes >= bounds[:, 0]) & (sizes <= bounds[:, 1])).all(dim=1)
+
+
+def class_agnostic_nms(box_scores: torch.Tensor, box_preds: torch.Tensor, nms_config, score_thresh=None,
+                       keep: torch.Tensor | None = None):
     """box_scores (A,), box_preds (A, 7) -> (selected indices into the inputs, their scores), best first.
 
-    nms_config: NMS_THRESH (BEV IoU), NMS_PRE_MAXSIZE, NMS_POST_MAXSIZE as in OpenPCDet's NMS_CONFIG.
+    nms_config: NMS_THRESH (BEV IoU), NMS_PRE_MAXSIZE, NMS_POST_MAXSIZE as in OpenPCDet's NMS_CONFIG; keep (A,)
+    bool: the only candidates (e.g. plausible sizes).
     """
     candidates = torch.arange(len(box_scores), device=box_scores.device)
+    mask = torch.ones_like(box_scores, dtype=torch.bool) if keep is None else keep.clone()
     if score_thresh is not None:
-        candidates = candidates[box_scores >= score_thresh]
+        mask &= box_scores >= score_thresh
+    candidates = candidates[mask]
     if len(candidates) == 0:
         return candidates, box_scores[candidates]
     keep = nms_rotated(box_preds[candidates, :7], box_scores[candidates], nms_config.NMS_THRESH,
@@ -40,9 +70,10 @@ def recall_record(pred_boxes: torch.Tensor, gt_boxes: torch.Tensor, thresh_list,
     return recall_dict
 
 
-def post_processing(batch_dict: dict, post_process_cfg) -> tuple[list[dict], dict]:
+def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | None = None) -> tuple[list[dict], dict]:
     """batch_cls_preds (B, A, C), batch_box_preds (B, A, 7) -> per frame {pred_boxes (K, 7), pred_scores (K,),
-    pred_labels (K,) 1-based}, and the recall record when gt_boxes are in the batch."""
+    pred_labels (K,) 1-based}, and the recall record when gt_boxes are in the batch. With `limits` (C, 2, 3)
+    (size_limits), boxes of implausible size never reach NMS."""
     if post_process_cfg.NMS_CONFIG.get("MULTI_CLASSES_NMS", False):
         raise ValueError("POST_PROCESSING.NMS_CONFIG.MULTI_CLASSES_NMS is not supported: set it False")
     pred_dicts, recall_dict = [], {}
@@ -52,8 +83,9 @@ def post_processing(batch_dict: dict, post_process_cfg) -> tuple[list[dict], dic
         if not batch_dict["cls_preds_normalized"]:
             cls_preds = torch.sigmoid(cls_preds)
         scores, labels = cls_preds.max(dim=-1)
+        keep = None if limits is None else plausible(box_preds, labels, limits)
         selected, selected_scores = class_agnostic_nms(scores, box_preds, post_process_cfg.NMS_CONFIG,
-                                                       post_process_cfg.get("SCORE_THRESH"))
+                                                       post_process_cfg.get("SCORE_THRESH"), keep)
         final_boxes = box_preds[selected]
         if "gt_boxes" in batch_dict:
             recall_record(final_boxes, batch_dict["gt_boxes"][index], post_process_cfg.RECALL_THRESH_LIST,

@@ -81,3 +81,31 @@ def test_nearest_bev_iou_snaps_heading_to_axis():
     assert nearest_bev_iou(box, turned).item() == pytest.approx(1.0)
     assert nearest_bev_iou(box, near_pi).item() == pytest.approx(1.0)
     assert nearest_bev_iou(box, box[:, [0, 1, 2, 4, 3, 5, 6]]).item() == pytest.approx(1 / 3)
+
+
+def test_post_processing_drops_boxes_no_person_can_have():
+    """Saturated size regressions (50 m long, 2 cm thin, NaN, inf) never become detections; a person does.
+    Limits are the anchor [0.8, 0.6, 1.73] times SIZE_RATIO_RANGE [0.3, 2.0], bounds included."""
+    from pcdet_memslidar.models.post_processing import post_processing, size_limits
+    cfg = small_model_cfg()
+    limits = size_limits(cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG, ["Pedestrian"], [0.3, 2.0])
+    anchor = torch.tensor([0.8, 0.6, 1.73])
+    assert torch.equal(limits, torch.stack([anchor * 0.3, anchor * 2.0])[None])
+    boxes = torch.tensor([
+        [5.0, 0.0, 0.85, 0.7, 0.5, 1.7, 0.0],        # a person
+        [10.0, 0.0, 0.85, 50.0, 0.5, 1.7, 0.0],      # 50 m long
+        [15.0, 0.0, 0.85, 0.7, 0.02, 1.7, 0.0],      # 2 cm thin
+        [20.0, 0.0, 0.85, 0.7, 0.5, float("nan"), 0.0],
+        [25.0, 0.0, 0.85, float("inf"), 0.5, 1.7, 0.0],
+        [30.0, 0.0, 0.85, 0.0, 0.0, 0.0, 0.0],       # sizes set to the limits below: kept
+    ])
+    boxes[5, 3:6] = torch.stack([anchor[0] * 2.0, anchor[1] * 0.3, anchor[2] * 2.0])
+    batch = {"batch_size": 1, "batch_box_preds": boxes[None], "batch_cls_preds": torch.full((1, 6, 1), 5.0),
+             "cls_preds_normalized": False}
+    pred_dicts, _ = post_processing(batch, cfg.POST_PROCESSING, limits)
+    kept = sorted(pred_dicts[0]["pred_boxes"][:, 0].tolist())
+    assert kept == [5.0, 30.0]
+    unfiltered, _ = post_processing(batch, cfg.POST_PROCESSING)
+    assert len(unfiltered[0]["pred_boxes"]) >= 3  # without limits the saturated boxes come through
+    with pytest.raises(Exception, match="SIZE_RATIO_RANGE"):
+        size_limits(cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG, ["Pedestrian"], [1.5, 2.0])
