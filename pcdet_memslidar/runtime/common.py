@@ -33,8 +33,10 @@ def get_device(local_rank: int = 0) -> torch.device:
     return torch.device("cuda", local_rank) if torch.cuda.is_available() else torch.device("cpu")
 
 
-def create_logger(log_file: str | Path | None = None, rank: int = 0, name: str = "pcdet_memslidar") -> logging.Logger:
-    """Logger printing to the console (and to `log_file`) on rank 0; quiet (errors only) on other ranks."""
+def create_logger(log_file: str | Path | None = None, rank: int = 0, name: str = "pcdet_memslidar",
+                  console: bool = True) -> logging.Logger:
+    """Logger printing to the console (unless `console` is False) and to `log_file` on rank 0; quiet (errors
+    only) on other ranks."""
     logger = logging.getLogger(name)
     logger.setLevel(logging.INFO if rank == 0 else logging.ERROR)
     logger.propagate = False
@@ -42,7 +44,7 @@ def create_logger(log_file: str | Path | None = None, rank: int = 0, name: str =
         logger.removeHandler(handler)
         handler.close()
     formatter = logging.Formatter("%(asctime)s  %(levelname)5s  %(message)s")
-    handlers: list[logging.Handler] = [logging.StreamHandler()]
+    handlers: list[logging.Handler] = [logging.StreamHandler()] if console else []
     if log_file is not None and rank == 0:
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
         handlers.append(logging.FileHandler(log_file))

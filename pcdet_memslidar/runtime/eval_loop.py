@@ -1,6 +1,7 @@
 """The evaluation loop: inference over a split, per-frame predictions, the dataset's AP, ms/frame."""
 from __future__ import annotations
 
+import copy
 import logging
 import pickle
 import time
@@ -68,3 +69,10 @@ def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | No
     ret_dict.update(result_dict)
     logger.info("****************Evaluation done.*****************")
     return ret_dict
+
+
+def split_config(cfg, split: str):
+    """A copy of cfg whose evaluation split (DATA_CONFIG.DATA_SPLIT.test) is `split` ('val': the 30 % of the mix)."""
+    cfg = copy.deepcopy(cfg)
+    cfg.DATA_CONFIG.DATA_SPLIT.test = split
+    return cfg

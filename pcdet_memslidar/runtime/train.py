@@ -17,7 +17,7 @@ from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints, load_params_from_file
 from pcdet_memslidar.runtime.common import create_logger, set_random_seed
-from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
+from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
 from pcdet_memslidar.runtime.experiment import add_common_arguments, ap_line, scalars, setup_experiment, test_split
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 
@@ -41,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ckpt_save_time_interval", type=int, default=300, help="seconds between latest_model saves")
     parser.add_argument("--wo_gpu_stat", action="store_true", default=False, help="accepted for compatibility")
     parser.add_argument("--use_amp", action="store_true", default=False, help="mixed precision (CUDA only)")
+    parser.add_argument("--val_interval", type=int, default=1,
+                        help="epochs between AP evaluations on the val split (tensorboard val/*); 0: none")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,6 +77,23 @@ def run(args: argparse.Namespace) -> int:
         device_ids = [exp.device.index] if exp.device.type == "cuda" else None
         model = torch.nn.parallel.DistributedDataParallel(model, device_ids=device_ids)
 
+    on_epoch_end = None
+    if args.val_interval > 0:
+        val_cfg = split_config(cfg, "val")
+        _, val_loader, _ = build_dataloader(dataset_cfg=val_cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES,
+                                            batch_size=exp.batch_size, dist=exp.dist, workers=args.workers,
+                                            logger=logger, training=False)
+
+        def on_epoch_end(epoch: int, mean_loss: float) -> None:
+            if epoch % args.val_interval:
+                return
+            result = eval_one_epoch(val_cfg, model, val_loader, epoch, logger, exp.device, dist_test=exp.dist)
+            if exp.rank == 0:
+                logger.info(f"epoch {epoch} val: {ap_line(result)}")
+                tb_log.add_scalar("train/epoch_loss", mean_loss, epoch)
+                for key, value in scalars(result).items():
+                    tb_log.add_scalar(f"val/{key}", value, epoch)
+
     logger.info(f"**********************Start training {cfg.EXP_GROUP_PATH}/{cfg.TAG}({args.extra_tag})"
                 f"**********************")
     started = time.time()
@@ -83,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
                 ckpt_save_interval=args.ckpt_save_interval, max_ckpt_save_num=args.max_ckpt_save_num,
                 merge_all_iters_to_one_epoch=args.merge_all_iters_to_one_epoch, logger=logger,
                 logger_iter_interval=args.logger_iter_interval, ckpt_save_time_interval=args.ckpt_save_time_interval,
-                use_tqdm_to_record=args.use_tqdm_to_record, use_amp=args.use_amp)
+                use_tqdm_to_record=args.use_tqdm_to_record, use_amp=args.use_amp, on_epoch_end=on_epoch_end)
     logger.info(f"training done in {time.time() - started:.1f} s")
     if exp.dist:
         torch.distributed.barrier()  # rank 0 has written the last checkpoint

@@ -79,9 +79,10 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                 ckpt_save_interval: int = 1, max_ckpt_save_num: int = 50, merge_all_iters_to_one_epoch: bool = False,
                 logger: logging.Logger | None = None, logger_iter_interval: int = 50,
                 ckpt_save_time_interval: float = 300, use_tqdm_to_record: bool = False,
-                use_amp: bool = False) -> int:
+                use_amp: bool = False, on_epoch_end=None) -> int:
     """Train from `start_epoch` to `total_epochs`; rank 0 writes checkpoints and logs. Returns the iteration
-    count reached. With merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts."""
+    count reached. With merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts.
+    on_epoch_end(epoch, mean_loss) runs on every rank after each epoch's checkpoint (epoch counts from 1)."""
     logger = logger or logging.getLogger(__name__)
     ckpt_save_dir = Path(ckpt_save_dir)
     accumulated_iter = start_iter
@@ -97,12 +98,14 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
     last_save = time.time()
     for epoch in tqdm.trange(start_epoch, total_epochs, desc="epochs", dynamic_ncols=True, disable=not show_bar):
         epoch_start = time.time()
+        epoch_loss = 0.0
         with tqdm.tqdm(total=iters_per_epoch, desc="train", leave=False, dynamic_ncols=True,
                        disable=not show_bar) as bar:
             for step in range(iters_per_epoch):
                 loss, tb_dict = train_one_step(model, optimizer, lr_scheduler, next(batches),
                                                optim_cfg.GRAD_NORM_CLIP, device, scaler)
                 accumulated_iter += 1
+                epoch_loss += loss
                 lr = optimizer.param_groups[0]["lr"]
                 bar.set_postfix(loss=f"{loss:.3f}", lr=f"{lr:.2e}")
                 bar.update()
@@ -130,4 +133,7 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                     old.unlink()
                 save_checkpoint(checkpoint_state(model, optimizer, trained_epoch, accumulated_iter),
                                 ckpt_save_dir / f"checkpoint_epoch_{trained_epoch}.pth")
+        if on_epoch_end is not None:
+            on_epoch_end(trained_epoch, epoch_loss / iters_per_epoch)
+            model.train()
     return accumulated_iter

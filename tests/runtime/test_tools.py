@@ -1,9 +1,11 @@
 """tools/train.py and tools/test.py end to end on synthetic frames: output layout, checkpoints, resume, AP line."""
+import struct
 import sys
 from pathlib import Path
 
 import pytest
 import yaml
+from tensorboardX.proto import event_pb2
 from torch.utils.data import DataLoader
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
@@ -47,6 +49,21 @@ def _plain(value):
     return value
 
 
+def tensorboard_scalars(folder) -> dict[str, dict[int, float]]:
+    """{tag: {step: value}} of the tensorboard event files in folder (TFRecord: length, crc, event, crc)."""
+    scalars = {}
+    for path in folder.iterdir():
+        data = path.read_bytes()
+        offset = 0
+        while offset < len(data):
+            length = struct.unpack("<Q", data[offset:offset + 8])[0]
+            event = event_pb2.Event.FromString(data[offset + 12:offset + 12 + length])
+            offset += 16 + length
+            for value in event.summary.value:
+                scalars.setdefault(value.tag, {})[event.step] = value.simple_value
+    return scalars
+
+
 def test_train_then_test_then_resume(experiment, capsys):
     cfg_file, output = experiment
     common = ["--cfg", str(cfg_file), "--output_dir", str(output), "--workers", "0", "--extra_tag", "run"]
@@ -54,7 +71,11 @@ def test_train_then_test_then_resume(experiment, capsys):
     run_dir = output / "people" / "tiny" / "run"
     assert sorted(p.name for p in (run_dir / "ckpt").iterdir()) == ["checkpoint_epoch_1.pth", "checkpoint_epoch_2.pth"]
     assert len(list(run_dir.glob("log_train_*.txt"))) == 1
-    assert any((run_dir / "tensorboard").iterdir())
+    scalars = tensorboard_scalars(run_dir / "tensorboard")
+    assert sorted(scalars["val/AP3D_R40"]) == sorted(scalars["train/epoch_loss"]) == [1, 2]  # every epoch
+    assert all(0 <= value <= 1 for value in scalars["val/AP3D_R40"].values())
+    log = next(run_dir.glob("log_train_*.txt")).read_text()
+    assert "epoch 1 val: AP@IoU0.5  3D R40 " in log and "epoch 2 val: " in log
     assert (run_dir / "eval" / "eval_with_train" / "epoch_2" / "val" / "result.pkl").is_file()
 
     capsys.readouterr()
