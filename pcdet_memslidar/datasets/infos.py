@@ -47,7 +47,7 @@ def layout_fingerprint(layout: KittiLayout) -> str:
 def _check_domain(source: Source) -> KittiLayout:
     layout = KittiLayout(source.root)
     if not layout.frame_ids():
-        command = make_frames_command(source.name, source.root, source.count)
+        command = make_frames_command(source, source.count)
         raise DataFormatError(layout.training / "velodyne", f"source '{source.name}' has no frames: make them with "
                                                             f"{command}")
     return layout

@@ -3,7 +3,8 @@
 Config (DATA_CONFIG.MIX):
     MIX: {TOTAL: 2100, VAL_FRACTION: 0.3, SPLIT_SEED: 0, BALANCE_BATCHES: False,
           SOURCES: [{NAME: sim, RATIO: 0.5}, {NAME: real, RATIO: 0.5, PATH: optional/folder}]}
-A source gives RATIO (of TOTAL) or COUNT (frames). Each source takes its first `count` frames in sorted id order (so
+A source gives RATIO (of TOTAL) or COUNT (frames); a simulated source may name the simulator's DOMAIN preset
+(default: its NAME) and the simulation SEED (default 0) that `memslidar reproduce` makes its frames with. Each source takes its first `count` frames in sorted id order (so
 adding frames never changes which ones are taken), split 70/30 by io.layout.stable_split.
 """
 from __future__ import annotations
@@ -23,11 +24,24 @@ BUNDLED_DOMAINS = ("sim", "real", "industrial")
 
 @dataclass(frozen=True)
 class Source:
-    """One named source: its dataset folder (KITTI layout) and how many of its frames it gives (None: all)."""
+    """One named source: its dataset folder (KITTI layout), how many of its frames it gives (None: all), and the
+    simulator domain and seed that make its frames when it is simulated."""
 
     name: str
     root: Path
     count: int | None
+    domain: str = ""
+    seed: int = 0
+
+    def __post_init__(self):
+        if not self.domain:
+            object.__setattr__(self, "domain", self.name)
+
+
+def _source(entry, data_path: Path, count: int | None) -> Source:
+    """The Source of a MIX.SOURCES or TEST_SOURCE entry {NAME, PATH?, DOMAIN?, SEED?}."""
+    return Source(entry.NAME, data_path / entry.get("PATH", entry.NAME), count, entry.get("DOMAIN", entry.NAME),
+                  int(entry.get("SEED", 0)))
 
 
 def source_counts(mix_cfg) -> dict[str, int]:
@@ -62,8 +76,7 @@ def source_counts(mix_cfg) -> dict[str, int]:
 def resolve_sources(mix_cfg, data_path: Path) -> list[Source]:
     """The mix's sources with their folders (PATH, relative to DATA_PATH, else DATA_PATH/<NAME>) and counts."""
     counts = source_counts(mix_cfg)
-    return [Source(source.NAME, data_path / source.get("PATH", source.NAME), counts[source.NAME])
-            for source in mix_cfg.SOURCES]
+    return [_source(source, data_path, counts[source.NAME]) for source in mix_cfg.SOURCES]
 
 
 def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
@@ -71,18 +84,18 @@ def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
     if split in ("train", "val"):
         return [source for source in resolve_sources(data_cfg.MIX, data_path) if source.count > 0]
     if split == "test":
-        test = data_cfg.TEST_SOURCE
-        return [Source(test.NAME, data_path / test.get("PATH", test.NAME), None)]
+        return [_source(data_cfg.TEST_SOURCE, data_path, None)]
     raise ConfigError(f"DATA_CONFIG.DATA_SPLIT: unknown split {split!r}; use train, val (the mix) or test "
                       f"(DATA_CONFIG.TEST_SOURCE)")
 
 
-def make_frames_command(name: str, root: Path, frames: int | None) -> str:
-    """The command that creates `frames` frames (None: the domain preset's number) of source `name` in `root`."""
-    importing = f"`memslidar import --format <format> --src <recordings> --out {root}`"
-    if name in BUNDLED_DOMAINS:
+def make_frames_command(source: Source, frames: int | None) -> str:
+    """The command that creates `frames` frames (None: the domain preset's number) of `source` in its folder."""
+    importing = f"`memslidar import --format <format> --src <recordings> --out {source.root}`"
+    if source.domain in BUNDLED_DOMAINS:
         count = "" if frames is None else f" --frames {frames}"
-        return f"`memslidar simulate --domain {name}{count} --out {root}` (or bring recordings: {importing})"
+        return (f"`memslidar simulate --domain {source.domain}{count} --out {source.root} --seed {source.seed}` "
+                f"(or bring recordings: {importing})")
     return f"{importing} with {'annotated frames' if frames is None else f'at least {frames} annotated frames'}"
 
 
@@ -92,7 +105,7 @@ def select_frames(source: Source, frame_ids: list[str], where: Path) -> list[str
     if source.count is None:
         return frame_ids
     if len(frame_ids) < source.count:
-        command = make_frames_command(source.name, source.root, source.count)
+        command = make_frames_command(source, source.count)
         raise DataFormatError(where, f"source '{source.name}' has {len(frame_ids)} frames but the mix needs "
                                      f"{source.count}: make them with {command}, then re-run "
                                      f"`memslidar create-infos --cfg <your cfg>`")

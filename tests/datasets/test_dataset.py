@@ -112,7 +112,7 @@ def test_too_few_frames_and_missing_infos_say_which_command_makes_them(memslidar
     with pytest.raises(DataFormatError, match="memslidar simulate --domain sim --frames 10 --out"):
         MEMSLidarDataset(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=True)
     industrial = tmp_path / "industrial"
-    with pytest.raises(DataFormatError, match=f"memslidar simulate --domain industrial --out {industrial}`"):
+    with pytest.raises(DataFormatError, match=f"memslidar simulate --domain industrial --out {industrial} --seed 0`"):
         MEMSLidarDataset(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False)
     copy = tmp_path / "sim" / "training" / "velodyne"
     copy.mkdir(parents=True)
