@@ -1,5 +1,5 @@
 """Figures (PNG, matplotlib without pyplot): one frame with its boxes; and for the reproduction Fig. 3-style
-example frames, precision-recall curves of M1-M4, AP against inference time.
+example frames, precision-recall curves of M1-M4, AP against inference time, training curves.
 
 Boxes are OpenPCDet LiDAR boxes (M, 7) [x, y, z_center, dx, dy, dz, heading] in the normalised ground frame
 (x forward, y left, z up, ground at z = 0); points (N, 3+) [x, y, z, ...] [m].
@@ -246,6 +246,26 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
            title="AP on the industrial split against inference time")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
+    return _save(figure, path)
+
+
+def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Path:
+    """Training loss and validation AP per epoch, one line per model.
+
+    curves: {model: [{'epoch', 'minutes' (training time so far), 'loss' (mean over the epoch), 'val_AP3D_R40'}]}.
+    """
+    figure = Figure(figsize=(10, 4), layout="constrained")
+    loss_ax, ap_ax = figure.add_subplot(1, 2, 1), figure.add_subplot(1, 2, 2)
+    for model, curve in curves.items():
+        epochs = [entry["epoch"] for entry in curve]
+        loss_ax.plot(epochs, [entry["loss"] for entry in curve], marker="o", markersize=3, label=model)
+        ap_ax.plot(epochs, [entry["val_AP3D_R40"] for entry in curve], marker="o", markersize=3, label=model)
+    loss_ax.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", title="training loss")
+    ap_ax.set(xlabel="epoch", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
+              title="AP on each model's own validation split")
+    for ax in (loss_ax, ap_ax):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     return _save(figure, path)
 
 

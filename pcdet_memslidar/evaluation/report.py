@@ -26,6 +26,7 @@ from pcdet_memslidar.utils.atomic import write_text
 PAPER_COUNTS = {"M1": {"sim": 0, "real": 2100}, "M2": {"sim": 2100, "real": 0},
                 "M3": {"sim": 1050, "real": 1050}, "M4": {"sim": 1470, "real": 630}}
 PAPER_AP = {"M1": 0.10, "M2": 0.27, "M3": 0.54, "M4": 0.45}
+PAPER_ORDER = ("M3", "M4", "M2", "M1")  # Table 3, best first
 HEADLINE = "AP3D_R40"  # compared with the paper's AP: 3D IoU 0.5, OpenPCDet's default 40 recall positions
 TABLE3_COLUMNS = ("AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11")
 REFERENCE_MODEL = "M1"
@@ -84,6 +85,8 @@ def table2(results: dict) -> list[str]:
     """Markdown lines of Table 2 as built: frames per source of each training set and its train/val split."""
     rows = []
     for name, model in results["models"].items():
+        if name not in PAPER_COUNTS:
+            continue
         counts = model["counts"]
         sim, real = counts.get("sim", {}), counts.get("real", {})
         total = sum(source["frames"] for source in counts.values()) or 1
@@ -100,6 +103,44 @@ def table2(results: dict) -> list[str]:
                    "paper (frames)"], rows)
 
 
+def other_training_sets(results: dict) -> list[str]:
+    """Markdown lines for the models beyond Table 2 (the oracle): their sources with frames, train and val."""
+    lines = []
+    for name, model in results["models"].items():
+        if name in PAPER_COUNTS:
+            continue
+        sources = ", ".join(f"`{source}` {entry['frames']} frames ({entry['train']} train / {entry['val']} val)"
+                            for source, entry in model["counts"].items())
+        lines.append(f"- {name}: {sources}")
+    return lines
+
+
+def order_statement(results: dict, metric: str = HEADLINE) -> str:
+    """Whether this run's M1-M4 rank as in the paper (M3 > M4 > M2 > M1), and where the oracle stands."""
+    models, seeds = results["models"], len(results["seeds"])
+    means = {name: models[name]["mean"].get(metric) for name in PAPER_ORDER if name in models}
+    if len(means) < len(PAPER_ORDER) or any(value is None for value in means.values()):
+        return "The paper's order cannot be checked: some of M1-M4 have no AP."
+    order = sorted(means, key=means.get, reverse=True)
+    strict = all(means[a] > means[b] for a, b in zip(PAPER_ORDER, PAPER_ORDER[1:]))
+    verdict = "holds" if strict else "does not hold"
+    ranked = f"{order[0]} ({means[order[0]]:.3f})" + "".join(
+        f" {'>' if means[a] > means[b] else '='} {b} ({means[b]:.3f})" for a, b in zip(order, order[1:]))
+    text = f"The paper's order M3 > M4 > M2 > M1 {verdict} here: this run gives {ranked}."
+    if seeds > 1:
+        close = [f"{a} - {b}" for a, b in zip(order, order[1:])
+                 if means[a] - means[b] <= max(models[a]["std"][metric], models[b]["std"][metric])]
+        text += (f" Gaps within one standard deviation of the {seeds} seeds: {', '.join(close)}." if close
+                 else f" Every gap is larger than the standard deviation over {seeds} seeds.")
+    oracle = models.get("oracle", {}).get("mean", {}).get(metric)
+    if oracle is not None:
+        best = order[0]
+        above = all(oracle > value for value in means.values())
+        text += f" The oracle (in-domain training) reaches {oracle:.3f}, {'above' if above else 'not above'} every mix"
+        text += f"; the best mix, {best}, reaches {100 * means[best] / oracle:.0f} % of it." if oracle > 0 else "."
+    return text
+
+
 def table3(results: dict) -> list[str]:
     """Markdown lines of Table 3: AP at IoU 0.5 (3D and BEV, R40 and R11), gain over M1, ms/frame, the paper's AP."""
     models, seeds = results["models"], len(results["seeds"])
@@ -109,7 +150,8 @@ def table3(results: dict) -> list[str]:
     for name, model in models.items():
         mean, std = model["mean"], model["std"]
         ms = mean.get("ms_per_frame")
-        rows.append([name, "SECOND", _ap(mean.get(HEADLINE), std.get(HEADLINE), seeds),
+        rows.append([name if name in PAPER_AP else f"{name} (not in the paper)", "SECOND",
+                     _ap(mean.get(HEADLINE), std.get(HEADLINE), seeds),
                      f"{PAPER_AP[name]:.2f}" if name in PAPER_AP else "-",
                      _pp(gains[name]), _pp(paper_gain.get(name)),
                      *(_ap(mean.get(key), std.get(key), seeds) for key in TABLE3_COLUMNS[1:]),
@@ -142,7 +184,15 @@ def _environment_lines(results: dict) -> list[str]:
 def _stage_lines(results: dict) -> list[str]:
     rows = [[name, f"{seconds:.1f}"] for name, seconds in results["stages"].items()]
     rows.append(["**total**", f"**{results['wall_seconds']:.1f}**"])
-    return _table(["stage", "wall time (s)"], rows)
+    lines = _table(["stage", "wall time (s)"], rows)
+    timed = [(name, run) for name, model in results["models"].items() for run in model["runs"] if "seconds" in run]
+    if timed:
+        lines += ["", f"Per model ({results.get('jobs', 1)} trained at once; training time includes the validation "
+                      "after each epoch):", ""]
+        lines += _table(["model", "seed", "torch threads", "train (s)", "evaluate (s)"],
+                        [[name, str(run["seed"]), str(run.get("threads", "")), f"{run['seconds']['train']:.1f}",
+                          f"{run['seconds']['evaluate']:.1f}"] for name, run in timed])
+    return lines
 
 
 def _data_lines(results: dict) -> list[str]:
@@ -164,9 +214,14 @@ def _figure_lines(results: dict) -> list[str]:
     if "pr_curves" in figures:
         lines += ["### Precision-recall curves", "", "Industrial split, IoU 0.5, all distances (first seed).", "",
                   f"![precision-recall curves]({figures['pr_curves']})", ""]
+    if "training_curves" in figures:
+        lines += ["### Convergence", "",
+                  "Training loss (mean over each epoch) and AP 3D R40 on each model's own validation split (the 30 % "
+                  "of its mix; the oracle's: industrial frames of its own seed) after every epoch (first seed).", "",
+                  f"![training curves]({figures['training_curves']})", ""]
     if "ap_vs_time" in figures:
         lines += ["### AP against inference time", "",
-                  "AP 3D (R40) on the industrial split against CPU inference time per frame: M1-M4 of this run and "
+                  "AP 3D (R40) on the industrial split against CPU inference time per frame: the models of this run and "
                   "the configurations of tools/benchmark_model.py where its results file exists.", "",
                   f"![AP against inference time]({figures['ap_vs_time']})", ""]
     return lines
@@ -188,11 +243,13 @@ def render_report(results: dict) -> str:
         "## Table 2: training sets as built", "",
         "Frames of each source before the stable 70/30 train/val split, and after it.", "",
         *table2(results), "",
+        *other_training_sets(results), "",
         f"## Table 3: SECOND on the unseen `{results['test_domain']}` split", "",
         "AP at IoU 0.5 (fractions). The paper's AP is compared with AP 3D R40; gains are percentage points over M1 "
         "(the paper's '+44 %' is 0.54 - 0.10). ms/frame: model forward and post-processing per frame on this machine.",
         "",
         *table3(results), "",
+        order_statement(results), "",
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",
         *bin_table(results), "",
         *_figure_lines(results),

@@ -16,6 +16,7 @@ PAPER_RANGE = [2.56, -23.04, -0.5, 40.96, 23.04, 2.5]
 
 def test_paper_grid_fits_second():
     assert check_second_grid(PAPER_RANGE, [0.08, 0.08, 0.075]).tolist() == [480, 576, 40]
+    assert check_second_grid([2.56, -23.2, -0.5, 40.96, 23.2, 2.5], [0.05, 0.05, 0.075]).tolist() == [768, 928, 40]
 
 
 def test_grid_rules_reject_bad_z_and_non_multiple_cells_with_sizes_that_fit():
@@ -32,8 +33,8 @@ def test_grid_rules_reject_bad_z_and_non_multiple_cells_with_sizes_that_fit():
     assert check_second_grid(PAPER_RANGE, [0.075, 0.08, 0.075]).tolist() == [512, 576, 40]
 
 
-@pytest.mark.parametrize("profile, total, grid", [("paper", 2100, [480, 576, 40]), ("quick", 160, [240, 288, 40]),
-                                                  ("smoke", 20, [240, 288, 40])])
+@pytest.mark.parametrize("profile, total, grid", [("paper", 2100, [768, 928, 40]), ("quick", 400, [384, 464, 40]),
+                                                  ("smoke", 20, [384, 464, 40])])
 def test_table2_counts_and_grids_of_the_shipped_cfgs(profile, total, grid):
     expected = {"m1": (0.0, 1.0), "m2": (1.0, 0.0), "m3": (0.5, 0.5), "m4": (0.7, 0.3)}
     for name, (sim, real) in expected.items():
@@ -58,7 +59,7 @@ def test_counts_round_by_largest_remainder_and_validate():
 
 def test_profile_from_set_and_explicit_set_wins():
     cfg = load_config(CFGS / "m3.yaml", ["OPTIMIZATION.NUM_EPOCHS", "3", "PROFILE", "quick"])
-    assert (cfg.PROFILE, cfg.DATA_CONFIG.MIX.TOTAL, cfg.OPTIMIZATION.NUM_EPOCHS) == ("quick", 160, 3)
+    assert (cfg.PROFILE, cfg.DATA_CONFIG.MIX.TOTAL, cfg.OPTIMIZATION.NUM_EPOCHS) == ("quick", 400, 3)
     paper = load_config(CFGS / "m3.yaml")
     assert (paper.PROFILE, paper.DATA_CONFIG.MIX.TOTAL, paper.OPTIMIZATION.NUM_EPOCHS, paper.OPTIMIZATION.LR) == \
         ("paper", 2100, 120, 1e-3)

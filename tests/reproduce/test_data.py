@@ -4,18 +4,31 @@ import logging
 import numpy as np
 import pytest
 
+from pcdet_memslidar.datasets.mixing import Source
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
-from pcdet_memslidar.reproduce import MODELS, check_run_config, frames_needed, model_config, prepare_domain
+from pcdet_memslidar.reproduce import RUNS, check_run_config, frames_needed, model_config, prepare_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE
 
 
 def test_frames_needed_per_profile(tmp_path):
-    smoke = frames_needed({model: model_config(model, "smoke", tmp_path) for model in MODELS})
-    assert {name: count for name, (_, count) in smoke.items()} == {"sim": 20, "real": 20, "industrial": 8}
-    assert smoke["real"][0] == tmp_path / "real"
-    paper = frames_needed({model: model_config(model, "paper", tmp_path) for model in MODELS})
-    assert {name: count for name, (_, count) in paper.items()} == {"sim": 2100, "real": 2100, "industrial": 230}
+    smoke = frames_needed({model: model_config(model, "smoke", tmp_path) for model in RUNS})
+    assert {name: source.count for name, source in smoke.items()} == \
+        {"sim": 20, "real": 20, "industrial": 8, "industrial_seed1": 20}
+    assert smoke["real"].root == tmp_path / "real"
+    oracle = smoke["industrial_seed1"]  # the oracle's training frames: the test domain, another simulation seed
+    assert (oracle.root, oracle.domain, oracle.seed) == (tmp_path / "industrial_seed1", "industrial", 1)
+    assert (smoke["industrial"].domain, smoke["industrial"].seed) == ("industrial", 0)
+    paper = frames_needed({model: model_config(model, "paper", tmp_path) for model in RUNS})
+    assert {name: source.count for name, source in paper.items()} == \
+        {"sim": 2100, "real": 2100, "industrial": 230, "industrial_seed1": 2100}
+
+
+def test_one_folder_of_two_domains_is_refused(tmp_path):
+    cfgs = {model: model_config(model, "smoke", tmp_path) for model in ("M1", "oracle")}
+    cfgs["oracle"].DATA_CONFIG.MIX.SOURCES[0].NAME = "industrial"  # seed 1 frames in the test split's folder
+    with pytest.raises(ConfigError, match="give one of them another NAME"):
+        frames_needed(cfgs)
 
 
 def test_overrides_reach_every_model(tmp_path):
@@ -32,7 +45,7 @@ def test_imported_recordings_are_not_overwritten(tmp_path):
         points = np.c_[np.random.default_rng(index).uniform(5, 15, (50, 3)), np.ones(50)].astype(np.float32)
         write_frame(layout, f"{index:06d}", points, ["Pedestrian"], box, {"source": "import"})
     before = {path: path.read_bytes() for path in root.rglob("*") if path.is_file()}
-    prepare_domain("real", root, 20, logging.getLogger("test"))
+    prepare_domain(Source("real", root, 20), logging.getLogger("test"))
     after = {path: path.read_bytes() for path in root.rglob("*") if path.is_file()}
     assert after == before and not (root / SETTINGS_FILE).exists()
 

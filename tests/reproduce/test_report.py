@@ -6,8 +6,8 @@ import pytest
 
 from pcdet_memslidar.evaluation.figures import (choose_example_frames, close_people, plot_ap_vs_time,
                                                 plot_example_frames, plot_frame, plot_pr_curves)
-from pcdet_memslidar.evaluation.report import (gain_over_reference, render_report, summarise_runs, table2,
-                                               write_report)
+from pcdet_memslidar.evaluation.report import (gain_over_reference, order_statement, render_report, summarise_runs,
+                                               table2, write_report)
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -21,7 +21,7 @@ def make_results(ap: dict, seeds=(0,), std=0.0):
     for name, value in ap.items():
         metrics = {"AP3D_R40": value, "AP3D_R11": value + 0.01, "APBEV_R40": value + 0.02, "APBEV_R11": value + 0.03,
                    "AP3D_R40_0-10m": value, "AP3D_R40_10-20m": None, "ms_per_frame": 120.0}
-        sim = {"M1": 0, "M2": 20, "M3": 10, "M4": 14}[name]
+        sim = {"M1": 0, "M2": 20, "M3": 10, "M4": 14, "oracle": 0}[name]
         counts = {"sim": {"frames": sim, "train": sim - sim * 3 // 10, "val": sim * 3 // 10},
                   "real": {"frames": 20 - sim, "train": (20 - sim) - (20 - sim) * 3 // 10, "val": (20 - sim) * 3 // 10}}
         models[name] = {"cfg": f"cfgs/{name.lower()}.yaml", "counts": counts, "mean": metrics,
@@ -78,6 +78,19 @@ def test_report_with_seeds_shows_mean_and_std(tmp_path):
     text = render_report(results)
     assert "mean ± standard deviation over 3 training seeds [0, 1, 2]" in text
     assert "| M2 | SECOND | 0.200 ± 0.050 | 0.27 | +10.0 | +17.0 |" in text
+
+
+def test_order_statement_ties_seeds_and_oracle():
+    held = order_statement(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.4, "M4": 0.3, "oracle": 0.5}))
+    assert held == ("The paper's order M3 > M4 > M2 > M1 holds here: this run gives M3 (0.400) > M4 (0.300) > "
+                    "M2 (0.200) > M1 (0.100). The oracle (in-domain training) reaches 0.500, above every mix; the "
+                    "best mix, M3, reaches 80 % of it.")
+    tied = order_statement(make_results({"M1": 0.0, "M2": 0.0, "M3": 0.0, "M4": 0.0, "oracle": 0.0}))
+    assert tied == ("The paper's order M3 > M4 > M2 > M1 does not hold here: this run gives M3 (0.000) = M4 (0.000) "
+                    "= M2 (0.000) = M1 (0.000). The oracle (in-domain training) reaches 0.000, not above every mix.")
+    noisy = order_statement(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.4, "M4": 0.35}, seeds=(0, 1, 2), std=0.06))
+    assert noisy.endswith("M3 (0.400) > M4 (0.350) > M2 (0.200) > M1 (0.100). Gaps within one standard deviation of "
+                          "the 3 seeds: M3 - M4.")
 
 
 def test_table2_percentages():

@@ -15,7 +15,7 @@ from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.evaluation import ap_summary, evaluate
 from pcdet_memslidar.evaluation.cli import read_label_folder
 from pcdet_memslidar.evaluation.report import table2, table3
-from pcdet_memslidar.reproduce import MODELS, model_config, reproduce, train_detector
+from pcdet_memslidar.reproduce import MODELS, RUNS, model_config, reproduce, train_detector
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
@@ -26,7 +26,7 @@ SMOKE_COUNTS = {"M1": (0, 20), "M2": (20, 0), "M3": (10, 10), "M4": (14, 6)}  # 
 @pytest.fixture(scope="module")
 def smoke(tmp_path_factory):
     out, data = tmp_path_factory.mktemp("reproduce"), tmp_path_factory.mktemp("data")
-    results = reproduce("smoke", seeds=1, out=out, data_root=data, workers=0, command="pytest smoke")
+    results = reproduce("smoke", seeds=1, out=out, data_root=data, workers=0, command="pytest smoke", jobs=2)
     return out, data, results
 
 
@@ -42,7 +42,7 @@ def test_results_equal_the_evaluators_json(smoke):
     stored = json.loads((out / "results.json").read_text())
     gt_dir = data / "industrial" / "training" / "label_2"
     num_gt = sum(len(anno["name"]) for anno in read_label_folder(gt_dir, with_score=False).values())
-    for model in MODELS:
+    for model in RUNS:
         run = stored["models"][model]["runs"][0]
         pred_dir = out / run["predictions"]
         assert len(list(pred_dir.glob("*.txt"))) == stored["data"]["industrial"]["frames"]  # one file per frame
@@ -59,7 +59,7 @@ def test_saved_predictions_match_the_in_memory_detections(smoke):
     out, data, _ = smoke
     stored = json.loads((out / "results.json").read_text())
     gt = read_label_folder(data / "industrial" / "training" / "label_2", with_score=False)
-    for model in MODELS:
+    for model in RUNS:
         det_annos = pickle.loads((out / "models" / model / "seed_0" / "eval" / "result.pkl").read_bytes())
         by_frame = {anno["frame_id"].split("/")[-1]: anno for anno in det_annos}
         assert set(by_frame) == set(gt)
@@ -86,9 +86,10 @@ def test_report_complete_and_consistent(smoke):
     stored = json.loads((out / "results.json").read_text())
     for line in table2(stored) + table3(stored):  # the tables as rendered from results.json are in the report
         assert line in text
-    for model in MODELS:
-        assert f"| {model} | SECOND | {stored['models'][model]['mean']['AP3D_R40']:.3f} |" in text
-    for name in ("fig3_examples.png", "pr_curves.png", "ap_vs_time.png"):
+    for model in RUNS:
+        label = model if model in MODELS else f"{model} (not in the paper)"
+        assert f"| {label} | SECOND | {stored['models'][model]['mean']['AP3D_R40']:.3f} |" in text
+    for name in ("fig3_examples.png", "pr_curves.png", "ap_vs_time.png", "training_curves.png"):
         assert f"]({name})" in text
         assert (out / name).read_bytes()[:8] == PNG_MAGIC
     examples = stored["example_frames"]
@@ -96,7 +97,8 @@ def test_report_complete_and_consistent(smoke):
     assert len({entry["frame_id"] for entry in examples}) == 3
     assert all((data / "industrial" / "training" / "velodyne" / f"{e['frame_id']}.bin").is_file() for e in examples)
     stages = stored["stages"]
-    assert {f"train {m}" for m in MODELS} | {f"evaluate {m}" for m in MODELS} | {"infos", "figures"} <= set(stages)
+    assert {"data: sim", "data: real", "data: industrial", "data: industrial_seed1", "infos", "figures",
+            "train and evaluate 5 models (2 at once)"} == set(stages)
     assert sum(stages.values()) <= stored["wall_seconds"]
     assert stored["profile"] == "smoke" and stored["environment"]["libraries"]["torch"]
     assert stored["models"] == json.loads(json.dumps(results["models"]))  # returned == written
@@ -113,3 +115,11 @@ def test_second_run_reuses_data_and_models(smoke):
     logger = logging.getLogger("test_smoke")
     assert train_detector(cfg, out / "models" / "M1" / "seed_0", seed=0, workers=0, logger=logger) == checkpoint
     assert checkpoint.stat().st_mtime_ns == before
+
+
+def test_every_run_records_its_convergence_curve(smoke):
+    _, _, results = smoke
+    for model in RUNS:
+        curve = results["models"][model]["runs"][0]["curve"]
+        assert [entry["epoch"] for entry in curve] == [1]
+        assert curve[0]["minutes"] > 0 and curve[0]["loss"] > 0 and 0 <= curve[0]["val_AP3D_R40"] <= 1
