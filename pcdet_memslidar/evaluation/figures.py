@@ -250,7 +250,7 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
 
 
 def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Path:
-    """Training loss and validation AP per epoch, one line per model.
+    """Training loss per epoch and validation AP against training minutes, one line per model.
 
     curves: {model: [{'epoch', 'minutes' (training time so far), 'loss' (mean over the epoch), 'val_AP3D_R40'}]}.
     """
@@ -259,10 +259,11 @@ def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Pat
     for model, curve in curves.items():
         epochs = [entry["epoch"] for entry in curve]
         loss_ax.plot(epochs, [entry["loss"] for entry in curve], marker="o", markersize=3, label=model)
-        ap_ax.plot(epochs, [entry["val_AP3D_R40"] for entry in curve], marker="o", markersize=3, label=model)
+        ap_ax.plot([entry["minutes"] for entry in curve], [entry["val_AP3D_R40"] for entry in curve], marker="o",
+                   markersize=3, label=model)
     loss_ax.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", title="training loss")
-    ap_ax.set(xlabel="epoch", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
-              title="AP on each model's own validation split")
+    ap_ax.set(xlabel="training minutes (validation excluded)", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
+              xlim=(0, None), title="AP on each model's own validation split, after each epoch")
     for ax in (loss_ax, ap_ax):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

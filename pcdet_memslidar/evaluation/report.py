@@ -216,8 +216,10 @@ def _figure_lines(results: dict) -> list[str]:
                   f"![precision-recall curves]({figures['pr_curves']})", ""]
     if "training_curves" in figures:
         lines += ["### Convergence", "",
-                  "Training loss (mean over each epoch) and AP 3D R40 on each model's own validation split (the 30 % "
-                  "of its mix; the oracle's: industrial frames of its own seed) after every epoch (first seed).", "",
+                  "Training loss per epoch (mean over the epoch), and AP 3D R40 on each model's own validation split "
+                  "(the 30 % of its mix; the oracle's: industrial frames of its own seed) after every epoch against "
+                  "the training minutes so far (first seed). A curve still rising at its end says more training "
+                  "would pay.", "",
                   f"![training curves]({figures['training_curves']})", ""]
     if "ap_vs_time" in figures:
         lines += ["### AP against inference time", "",

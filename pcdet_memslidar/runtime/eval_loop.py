@@ -30,7 +30,8 @@ def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | No
     det_annos, batch_times = [], []
     model.eval()
     logger.info(f"*************** EPOCH {epoch_id} EVALUATION *****************")
-    for batch in tqdm.tqdm(dataloader, desc="eval", leave=False, dynamic_ncols=True, disable=rank != 0):
+    quiet = {"disable": True} if rank != 0 else {}  # rank 0 leaves `disable` to tqdm (TQDM_DISABLE=1 silences it)
+    for batch in tqdm.tqdm(dataloader, desc="eval", leave=False, dynamic_ncols=True, **quiet):
         load_data_to_device(batch, device)
         start = time.perf_counter()
         with torch.no_grad():
