@@ -1,13 +1,15 @@
 """Benchmark SECOND on the CPU (or GPU): inference ms/frame and train-step ms per configuration, and a
-speed-vs-error table over voxel size and BEV backbone width with AP on the test (industrial) split.
+speed-vs-error table of variants of the quick recipe (BEV backbone width, head stride) with real AP.
 
-    python tools/benchmark_model.py --cfg cfgs/m3.yaml                         # latency: quick + paper profiles
-    python tools/benchmark_model.py --cfg cfgs/m3.yaml --variants --train_epochs 6 --set PROFILE quick
+    python tools/benchmark_model.py --cfg cfgs/m3.yaml                 # latency: quick + paper profiles
+    python tools/benchmark_model.py --cfg cfgs/m3.yaml --variants      # + each variant trained with the budget
 
 Frames come from the config's data when it exists (generate it first), else from synthetic person frames over
-the config's range (the table says which). AP needs data: each variant is trained --train_epochs epochs (or its
-checkpoint is given with --ckpt VARIANT=PATH) and evaluated on DATA_SPLIT.test. Results: a Markdown table on
-stdout and JSON in output/benchmark/model_benchmark.json.
+the config's range (the table says which). Latency is measured first, alone on the machine; then every variant is
+trained with the --profile's budget (epochs, frames, optimiser), several at once in their own processes as in
+`memslidar reproduce`, and its saved predictions of the test split are scored (AP 3D R40 at IoU 0.5), next to
+the AP on its validation split after the last epoch and its training minutes. Results: a Markdown table on
+stdout and JSON in output/benchmark/model_benchmark.json (the report's AP-vs-time figure reads it).
 """
 from __future__ import annotations
 
@@ -22,24 +24,24 @@ import numpy as np
 import torch
 
 from pcdet_memslidar.config import load_config
+from pcdet_memslidar.datasets.mixing import split_sources
+from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
-from pcdet_memslidar.runtime.checkpoint import load_params_from_file
+from pcdet_memslidar.reproduce import default_jobs, run_jobs
 from pcdet_memslidar.runtime.common import get_device, set_random_seed
-from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset
-from pcdet_memslidar.runtime.train_loop import train_model, train_one_step
+from pcdet_memslidar.runtime.train_loop import train_one_step
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
-# name -> (xy voxel size [m], BEV NUM_FILTERS, NUM_UPSAMPLE_FILTERS); 'paper' is the config as written
+# name -> changes to the profile's config: BEV NUM_FILTERS / NUM_UPSAMPLE_FILTERS, UPSAMPLE_STRIDES with the
+# anchors' feature_map_stride (the head's stride; anchors every stride x voxel)
 VARIANTS = {
-    "voxel0.08-width1": (0.08, [128, 256], [256, 256]),
-    "voxel0.08-width1/2": (0.08, [64, 128], [128, 128]),
-    "voxel0.12-width1": (0.12, [128, 256], [256, 256]),
-    "voxel0.16-width1": (0.16, [128, 256], [256, 256]),
-    "voxel0.16-width1/2": (0.16, [64, 128], [128, 128]),
-    "voxel0.16-width1/4": (0.16, [32, 64], [64, 64]),
+    "recipe": {},
+    "BEV width x2": {"filters": [128, 256], "upsample_filters": [256, 256]},
+    "BEV width x1/2": {"filters": [32, 64], "upsample_filters": [64, 64]},
+    "stride-8 head": {"upsample_strides": [1, 2], "head_stride": 8},
 }
 
 
@@ -47,12 +49,15 @@ def voxel_step(cfg) -> dict:
     return next(p for p in cfg.DATA_CONFIG.DATA_PROCESSOR if p.NAME == "transform_points_to_voxels")
 
 
-def apply_variant(cfg, xy_voxel: float, filters: list[int], upsample_filters: list[int]):
+def apply_variant(cfg, filters=None, upsample_filters=None, upsample_strides=None, head_stride=None):
+    """A copy of cfg with the variant's BEV widths and head stride."""
     cfg = copy.deepcopy(cfg)
-    step = voxel_step(cfg)
-    step.VOXEL_SIZE = [xy_voxel, xy_voxel, step.VOXEL_SIZE[2]]
-    cfg.MODEL.BACKBONE_2D.NUM_FILTERS = filters
-    cfg.MODEL.BACKBONE_2D.NUM_UPSAMPLE_FILTERS = upsample_filters
+    bev = cfg.MODEL.BACKBONE_2D
+    bev.NUM_FILTERS = filters or bev.NUM_FILTERS
+    bev.NUM_UPSAMPLE_FILTERS = upsample_filters or bev.NUM_UPSAMPLE_FILTERS
+    bev.UPSAMPLE_STRIDES = upsample_strides or bev.UPSAMPLE_STRIDES
+    for anchor in cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG:
+        anchor["feature_map_stride"] = head_stride or anchor["feature_map_stride"]
     return cfg
 
 
@@ -103,25 +108,19 @@ def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) ->
     return float(np.median(times))
 
 
-def train_and_evaluate(cfg, epochs: int, ckpt: str | None, device, out_dir: Path) -> float | None:
-    """AP3D_R40 at IoU 0.5 on the test split after `epochs` of training (or of checkpoint `ckpt`)."""
-    from pcdet_memslidar.datasets import build_dataloader
-
-    logger = logging.getLogger(__name__)
-    test_set, test_loader, _ = build_dataloader(cfg.DATA_CONFIG, cfg.CLASS_NAMES, 1, False, workers=2, training=False)
-    model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), test_set).to(device)
-    if ckpt:
-        load_params_from_file(model, ckpt, logger, strict=True)
-    else:
-        set_random_seed(666)
-        train_set, train_loader, _ = build_dataloader(cfg.DATA_CONFIG, cfg.CLASS_NAMES,
-                                                      cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU, False, workers=2, seed=666)
-        optimizer = build_optimizer(model, cfg.OPTIMIZATION)
-        scheduler = build_scheduler(optimizer, len(train_loader), epochs, -1, cfg.OPTIMIZATION)
-        train_model(model, optimizer, train_loader, scheduler, cfg.OPTIMIZATION, 0, epochs, 0, 0, None,
-                    out_dir / "ckpt", device, logger=logger)
-    result = eval_one_epoch(cfg, model, test_loader, epochs, logger, device, result_dir=out_dir)
-    return result.get("AP3D_R40")
+def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dict]:
+    """{name: {AP3D_R40 (test split), val_AP3D_R40 (last epoch), train_minutes}} of every variant trained with its
+    config's budget, all at once in worker processes (reproduce.run_jobs) into out_dir/<name>."""
+    jobs = []
+    for name, cfg in variants.items():
+        test, = split_sources(cfg.DATA_CONFIG, "test", Path(cfg.DATA_CONFIG.DATA_PATH))
+        run_dir = out_dir / name.replace("/", "-").replace(" ", "_")
+        jobs.append({"model": name, "seed": 0, "cfg": cfg, "run_dir": run_dir,
+                     "gt_dir": KittiLayout(test.root).training / "label_2", "out": out_dir, "workers": 0,
+                     "threads": threads})
+    runs = run_jobs(jobs, min(len(jobs), default_jobs()), logging.getLogger(__name__))
+    return {job["model"]: {"AP3D_R40": run["metrics"]["AP3D_R40"], "val_AP3D_R40": run["curve"][-1]["val_AP3D_R40"],
+                           "train_minutes": run["curve"][-1]["minutes"]} for job, run in zip(jobs, runs)}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,42 +131,44 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=10, help="timed frames / steps per configuration")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--batch_size", type=int, default=2, help="frames per timed training step")
-    parser.add_argument("--variants", action="store_true", help="also the speed-vs-error table")
-    parser.add_argument("--train_epochs", type=int, default=0, help="train each variant this long for its AP")
-    parser.add_argument("--ckpt", nargs="*", default=[], help="VARIANT=PATH checkpoints instead of training")
+    parser.add_argument("--variants", action="store_true",
+                        help="also the speed-vs-error table: every variant trained with the --profile's budget")
+    parser.add_argument("--profile", default="quick", help="the profile whose recipe the variants change")
     parser.add_argument("--set", dest="set_cfgs", nargs=argparse.REMAINDER, default=None)
     parser.add_argument("--output", default="output/benchmark/model_benchmark.json")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     torch.set_num_threads(args.threads)
     device = get_device()
-    checkpoints = dict(item.split("=", 1) for item in args.ckpt)
     rows = []
 
-    def measure(name: str, cfg, with_ap: bool) -> None:
+    def measure(name: str, cfg) -> None:
         dataset, source = frames_for(cfg, training=False, count=args.frames + args.warmup)
         set_random_seed(0)
         model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), dataset).to(device)
         row = {"config": name, "voxel_xy_m": voxel_step(cfg).VOXEL_SIZE[0],
-               "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS), "frames": source,
+               "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS),
+               "head_stride": cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0]["feature_map_stride"], "frames": source,
                "params": sum(p.numel() for p in model.parameters()),
                "infer_ms": time_inference(model, dataset, args.frames, args.warmup, device),
                "train_step_ms": time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2),
                                                 device)}
-        if with_ap and (args.train_epochs or name in checkpoints):
-            row["AP3D_R40"] = train_and_evaluate(cfg, args.train_epochs, checkpoints.get(name), device,
-                                                 Path(args.output).parent / name.replace("/", "_"))
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
     for profile in args.profiles:
-        measure(f"{Path(args.cfg).stem}/{profile}", load_config(args.cfg, args.set_cfgs, profile=profile), False)
+        measure(f"{Path(args.cfg).stem}/{profile}", load_config(args.cfg, args.set_cfgs, profile=profile))
     if args.variants:
-        base = load_config(args.cfg, args.set_cfgs)
-        for name, (xy_voxel, filters, upsample) in VARIANTS.items():
-            measure(name, apply_variant(base, xy_voxel, filters, upsample), True)
+        base = load_config(args.cfg, args.set_cfgs, profile=args.profile)
+        variants = {f"{args.profile} {name}": apply_variant(base, **changes) for name, changes in VARIANTS.items()}
+        for name, cfg in variants.items():
+            measure(name, cfg)
+        trained = train_variants(variants, Path(args.output).parent / "variants", threads=1)
+        for row in rows:
+            row.update(trained.get(row["config"], {}))
 
-    header = ["config", "voxel_xy_m", "bev_filters", "params", "frames", "infer_ms", "train_step_ms", "AP3D_R40"]
+    header = ["config", "voxel_xy_m", "bev_filters", "head_stride", "params", "frames", "infer_ms", "train_step_ms",
+              "train_minutes", "val_AP3D_R40", "AP3D_R40"]
     print(f"\ndevice {device}, {args.threads} torch threads, batch {args.batch_size} for train steps, "
           f"median of {args.frames} frames\n")
     print("| " + " | ".join(header) + " |\n|" + "---|" * len(header))

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
+from matplotlib.ticker import MaxNLocator
 
 from pcdet_memslidar.geometry.boxes import boxes_to_corners_3d
 from pcdet_memslidar.geometry.iou import boxes_iou3d, boxes_iou_bev
@@ -262,8 +263,9 @@ def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Pat
         ap_ax.plot([entry["minutes"] for entry in curve], [entry["val_AP3D_R40"] for entry in curve], marker="o",
                    markersize=3, label=model)
     loss_ax.set(xlabel="epoch", ylabel="training loss (mean over the epoch)", title="training loss")
-    ap_ax.set(xlabel="training minutes (validation excluded)", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
-              xlim=(0, None), title="AP on each model's own validation split, after each epoch")
+    ap_ax.set(xlabel="training minutes (wall clock, validation excluded)", ylabel="AP 3D R40 (IoU 0.5)",
+              ylim=(-0.02, 1.02), xlim=(0, None), title="AP on its validation split after each epoch")
+    loss_ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     for ax in (loss_ax, ap_ax):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

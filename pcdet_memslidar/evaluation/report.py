@@ -248,7 +248,9 @@ def render_report(results: dict) -> str:
         *other_training_sets(results), "",
         f"## Table 3: SECOND on the unseen `{results['test_domain']}` split", "",
         "AP at IoU 0.5 (fractions). The paper's AP is compared with AP 3D R40; gains are percentage points over M1 "
-        "(the paper's '+44 %' is 0.54 - 0.10). ms/frame: model forward and post-processing per frame on this machine.",
+        "(the paper's '+44 %' is 0.54 - 0.10). ms/frame: model forward and post-processing per frame on this machine"
+        + (f", timed while {results['jobs']} models shared its cores (tools/benchmark_model.py times one alone)."
+           if results.get("jobs", 1) > 1 else "."),
         "",
         *table3(results), "",
         order_statement(results), "",
