@@ -223,10 +223,23 @@ def run_model(job: dict, progress=None) -> dict:
 
 
 def _worker_run(job: dict, queue) -> dict:
-    """run_model in a worker process, reporting each finished epoch as (model, seed, epoch) on `queue`; the
-    worker's own progress bars are off (the parent's bar counts its epochs)."""
-    os.environ["TQDM_DISABLE"] = "1"
+    """run_model in a worker process, reporting each finished epoch as (model, seed, epoch) on `queue`."""
     return run_model(job, progress=lambda epoch: queue.put((job["model"], job["seed"], epoch)))
+
+
+@contextlib.contextmanager
+def _environment(**variables: str):
+    """Set environment variables for the processes started inside the block, then restore them."""
+    saved = {name: os.environ.get(name) for name in variables}
+    os.environ.update(variables)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
@@ -239,7 +252,8 @@ def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
     with context.Manager() as manager, ProcessPoolExecutor(parallel, mp_context=context) as pool, \
             tqdm.tqdm(total=total, desc=f"training ({parallel} at once)", unit="epoch", dynamic_ncols=True) as bar:
         queue = manager.Queue()
-        futures = {pool.submit(_worker_run, job, queue): index for index, job in enumerate(jobs)}
+        with _environment(TQDM_DISABLE="1"):  # workers start on submit; their bars stay off (this one counts)
+            futures = {pool.submit(_worker_run, job, queue): index for index, job in enumerate(jobs)}
         runs: list[dict | None] = [None] * len(jobs)
         pending = set(futures)
         while pending:
@@ -283,8 +297,9 @@ def _spconv_distribution() -> str:
 
 def benchmark_entries(results: dict) -> list[dict]:
     """Points of the AP-vs-time figure: the models of this run and tools/benchmark_model.py's configurations."""
+    shared = f" ({results['jobs']} models sharing the cores)" if results.get("jobs", 1) > 1 else ""
     entries = [{"name": name, "ms_per_frame": model["mean"]["ms_per_frame"], "ap": model["mean"][HEADLINE],
-                "group": "this run"} for name, model in results["models"].items()]
+                "group": f"this run{shared}"} for name, model in results["models"].items()]
     path = Path(global_cfg.ROOT_DIR) / BENCHMARK_RESULTS
     if path.is_file():
         benchmark = json.loads(path.read_text())
