@@ -240,9 +240,12 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
         members = [entry for entry in entries if entry["group"] == group and entry["ap"] is not None]
         ax.scatter([entry["ms_per_frame"] for entry in members], [entry["ap"] for entry in members], marker=marker,
                    label=group)
-        for entry in members:
-            ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7, xytext=(4, 3),
+        previous_ap = -1.0
+        for entry in sorted(members, key=lambda entry: (entry["ms_per_frame"], entry["ap"])):
+            above = entry["ap"] >= previous_ap  # the label goes away from its left neighbour
+            ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7, xytext=(4, 4 if above else -10),
                         textcoords="offset points")
+            previous_ap = entry["ap"]
     ax.set(xlabel="inference time [ms/frame]", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
            title="AP on the industrial split against inference time")
     ax.grid(alpha=0.3)
