@@ -4,8 +4,9 @@ Config (DATA_CONFIG.MIX):
     MIX: {TOTAL: 2100, VAL_FRACTION: 0.3, SPLIT_SEED: 0, BALANCE_BATCHES: False,
           SOURCES: [{NAME: sim, RATIO: 0.5}, {NAME: real, RATIO: 0.5, PATH: optional/folder}]}
 A source gives RATIO (of TOTAL) or COUNT (frames); a simulated source may name the simulator's DOMAIN preset
-(default: its NAME) and the simulation SEED (default 0) that `memslidar reproduce` makes its frames with. Each source takes its first `count` frames in sorted id order (so
-adding frames never changes which ones are taken), split 70/30 by io.layout.stable_split.
+(default: its NAME) and the simulation SEED (default 0) that `memslidar reproduce` makes its frames with. Each
+source takes its first `count` frames in sorted id order (so adding frames never changes which ones are taken),
+split 70/30 by io.layout.stable_split.
 """
 from __future__ import annotations
 

@@ -56,7 +56,8 @@ def bev_output_stride(backbone_2d_cfg) -> float:
     ConfigError when the levels it concatenates are upsampled to different strides."""
     strides = 8 * np.cumprod(backbone_2d_cfg.get("LAYER_STRIDES", [1])).astype(np.float64)
     upsample = [float(up) for up in backbone_2d_cfg.get("UPSAMPLE_STRIDES", [])]
-    levels = [float(stride / upsample[level] if level < len(upsample) else stride) for level, stride in enumerate(strides)]
+    levels = [float(stride / upsample[level] if level < len(upsample) else stride)
+              for level, stride in enumerate(strides)]
     if len(set(levels)) > 1:
         raise ConfigError(f"BACKBONE_2D: LAYER_STRIDES {list(backbone_2d_cfg.LAYER_STRIDES)} with UPSAMPLE_STRIDES "
                           f"{upsample} bring its levels to strides {levels}; they must meet at one stride")

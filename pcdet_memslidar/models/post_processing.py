@@ -35,14 +35,14 @@ def plausible(box_preds: torch.Tensor, labels: torch.Tensor, limits: torch.Tenso
 
 
 def class_agnostic_nms(box_scores: torch.Tensor, box_preds: torch.Tensor, nms_config, score_thresh=None,
-                       keep: torch.Tensor | None = None):
+                       allowed: torch.Tensor | None = None):
     """box_scores (A,), box_preds (A, 7) -> (selected indices into the inputs, their scores), best first.
 
-    nms_config: NMS_THRESH (BEV IoU), NMS_PRE_MAXSIZE, NMS_POST_MAXSIZE as in OpenPCDet's NMS_CONFIG; keep (A,)
-    bool: the only candidates (e.g. plausible sizes).
+    nms_config: NMS_THRESH (BEV IoU), NMS_PRE_MAXSIZE, NMS_POST_MAXSIZE as in OpenPCDet's NMS_CONFIG; allowed
+    (A,) bool: the only candidates (e.g. plausible sizes).
     """
     candidates = torch.arange(len(box_scores), device=box_scores.device)
-    mask = torch.ones_like(box_scores, dtype=torch.bool) if keep is None else keep.clone()
+    mask = torch.ones_like(box_scores, dtype=torch.bool) if allowed is None else allowed.clone()
     if score_thresh is not None:
         mask &= box_scores >= score_thresh
     candidates = candidates[mask]
@@ -83,9 +83,9 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
         if not batch_dict["cls_preds_normalized"]:
             cls_preds = torch.sigmoid(cls_preds)
         scores, labels = cls_preds.max(dim=-1)
-        keep = None if limits is None else plausible(box_preds, labels, limits)
+        allowed = None if limits is None else plausible(box_preds, labels, limits)
         selected, selected_scores = class_agnostic_nms(scores, box_preds, post_process_cfg.NMS_CONFIG,
-                                                       post_process_cfg.get("SCORE_THRESH"), keep)
+                                                       post_process_cfg.get("SCORE_THRESH"), allowed)
         final_boxes = box_preds[selected]
         if "gt_boxes" in batch_dict:
             recall_record(final_boxes, batch_dict["gt_boxes"][index], post_process_cfg.RECALL_THRESH_LIST,
