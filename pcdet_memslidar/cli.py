@@ -9,7 +9,7 @@ import argparse
 import importlib
 import sys
 
-from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 
 # name -> (module, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
-    except (DataFormatError, ConfigError) as error:
+    except (DataFormatError, ConfigError, OutputError) as error:
         parser.exit(2, f"memslidar {args.command}: error: {error}\n")
 
 

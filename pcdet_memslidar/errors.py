@@ -15,3 +15,7 @@ class DataFormatError(ValueError):
 
 class ConfigError(ValueError):
     """A config is inconsistent (unknown key, grid that does not fit the network, missing base file, ...)."""
+
+
+class OutputError(ValueError):
+    """An output path would overwrite or delete something the command did not create (an input, a user's file)."""

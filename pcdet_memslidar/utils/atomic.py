@@ -9,6 +9,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from pcdet_memslidar.errors import OutputError
+
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 _TEMPORARY_NUMBER = itertools.count()
@@ -76,3 +78,15 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
             os.replace(tmp, path)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def refuse_overlap(output: str | Path, inputs, option: str = "the output") -> Path:
+    """Return `output` resolved; raise OutputError if it equals or contains one of `inputs` (files or folders),
+    since writing it could replace or delete an input."""
+    output = Path(output).resolve()
+    for source in inputs:
+        source = Path(source).resolve()
+        if source == output or output in source.parents:
+            raise OutputError(f"{option} {output} {'is' if source == output else 'contains'} the input {source}; "
+                              f"choose {option} outside every input")
+    return output
