@@ -6,6 +6,7 @@ only the module of the command being run is imported, so `memslidar --help` stay
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import sys
 
@@ -21,6 +22,20 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "test": ("pcdet_memslidar.runtime.test", "evaluate checkpoints on the test split (OpenPCDet's tools/test.py flags)"),
     "eval": ("pcdet_memslidar.evaluation.cli", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
     "reproduce": ("pcdet_memslidar.reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
+}
+
+
+# errno -> what the user can do about it
+OS_ERROR_FIXES = {
+    errno.ENOSPC: "free space on that disk or write to another one",
+    errno.EDQUOT: "free space within your quota or write to another disk",
+    errno.EACCES: "choose a folder you may write to, or change its permissions",
+    errno.EPERM: "choose a folder you may write to, or change its permissions",
+    errno.EROFS: "the file system is read-only: choose another folder",
+    errno.ENOTDIR: "a file stands where a folder is needed: choose another path",
+    errno.EISDIR: "a folder stands where a file is needed: choose another path",
+    errno.EEXIST: "something already exists there: choose another path",
+    errno.ENOENT: "check the path",
 }
 
 
@@ -44,6 +59,18 @@ def main(argv: list[str] | None = None) -> int:
         return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
     except (DataFormatError, ConfigError, OutputError) as error:
         parser.exit(2, f"memslidar {args.command}: error: {error}\n")
+    except OSError as error:  # the file system refused: full disk, read-only folder, a file where a folder must be
+        parser.exit(2, f"memslidar {args.command}: error: {os_error_message(error)}\n")
+    except KeyboardInterrupt:
+        parser.exit(130, f"\nmemslidar {args.command}: interrupted; what was written is whole: run the same "
+                         f"command again to resume\n")
+
+
+def os_error_message(error: OSError) -> str:
+    """'<path>: <reason>; <fix>' for an error of the file system."""
+    fix = OS_ERROR_FIXES.get(error.errno, "check the path and its permissions")
+    where = f"{error.filename}: " if error.filename else ""
+    return f"{where}{error.strerror or error}; {fix}"
 
 
 if __name__ == "__main__":

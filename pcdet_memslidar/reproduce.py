@@ -55,8 +55,9 @@ from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
-from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.atomic import refuse_overlap, write_text
 from pcdet_memslidar.utils.cores import available_cores
+from pcdet_memslidar.utils.processes import exit_with_parent
 
 MODELS = ("M1", "M2", "M3", "M4")
 ORACLE = "oracle"  # trained in-domain: the ceiling of what a mix can reach on the industrial split
@@ -249,7 +250,8 @@ def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
     if parallel <= 1:
         return [run_model(job) for job in jobs]
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch thread pools
-    with context.Manager() as manager, ProcessPoolExecutor(parallel, mp_context=context) as pool, \
+    pool = ProcessPoolExecutor(parallel, mp_context=context, initializer=exit_with_parent)  # ends with this one
+    with context.Manager() as manager, pool, \
             tqdm.tqdm(total=total, desc=f"training ({parallel} at once)", unit="epoch", dynamic_ncols=True) as bar:
         queue = manager.Queue()
         with _environment(TQDM_DISABLE="1"):  # workers start on submit; their bars stay off (this one counts)
@@ -370,12 +372,15 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     jobs = default_jobs() if jobs is None else jobs
     if jobs < 1:
         raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+    if workers < 0:
+        raise ConfigError(f"--workers must be >= 0 (0: load data in the training process), got {workers}")
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
+    cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in RUNS}
+    needed = frames_needed(cfgs)
+    refuse_overlap(out, [source.root for source in needed.values()], "--out")
     out.mkdir(parents=True, exist_ok=True)
     logger = create_logger(out / "reproduce_log.txt")
     clock = StageClock(logger)
-    cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in RUNS}
-    needed = frames_needed(cfgs)
 
     for source in needed.values():  # 1. data
         with clock(f"data: {source.name}"):

@@ -27,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     summary = simulate_dataset(preset, frames, out, seed=args.seed, workers=args.workers,
                                shard=parse_shard(args.shard))
     state = "complete, ImageSets written" if summary["complete"] else "incomplete (other shards pending)"
-    print(f"{out}: {summary['written']} frames written, {summary['skipped']} already there; {state}; "
+    remade = f" ({summary['remade']} of them damaged, made again)" if summary["remade"] else ""
+    print(f"{out}: {summary['written']} frames written{remade}, {summary['skipped']} already there; {state}; "
           f"fingerprint {summary['fingerprint']}")
     return 0

@@ -7,8 +7,9 @@
     <out>/ImageSets/train.txt, val.txt     the stable 70/30 split, written once all frames exist
 
 Frame i is made from the seed sequence (seed, i) only, so any split of the frames over workers, shards or
-interrupted runs gives byte-identical files. A frame is complete once its velodyne file exists (written last);
-complete frames are skipped. An output folder made with other settings is refused (fingerprint mismatch).
+interrupted runs gives byte-identical files. A frame is complete once its velodyne file exists (written last) and
+every file of it is whole: complete frames are skipped, damaged ones made again. An output folder made with other
+settings is refused (fingerprint mismatch). Worker processes end when their parent dies.
 In one process, FRAME_THREADS frames are made at a time, in threads.
 """
 from __future__ import annotations
@@ -24,7 +25,8 @@ import numpy as np
 from tqdm import tqdm
 
 import pcdet_memslidar
-from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
+from pcdet_memslidar.io.kitti import read_label
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.sim.bodies import BANK_PATH
 from pcdet_memslidar.sim.domains import DomainPreset
@@ -33,9 +35,11 @@ from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
+from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
 
 SETTINGS_FILE = "simulation.json"
 FRAME_THREADS = 2  # frames made at a time by one process
+MAX_FRAMES = 10 ** 6  # frame ids have six digits
 
 
 def time_offset_path(layout: KittiLayout, frame_id: str) -> Path:
@@ -87,7 +91,7 @@ def _write_one(args) -> int:
 
 
 def _check_settings(root: Path, settings: dict) -> None:
-    """Write <root>/simulation.json, or refuse a folder made with other settings."""
+    """Write <root>/simulation.json, or refuse a folder made with other settings or by something else."""
     path = root / SETTINGS_FILE
     if path.is_file():
         try:
@@ -100,53 +104,79 @@ def _check_settings(root: Path, settings: dict) -> None:
                                         f"{existing.get('fingerprint')}, asked for {settings['fingerprint']}: "
                                         f"domain, seed, sensor, pattern or package version differ); choose "
                                         f"another --out or delete the folder to regenerate")
+    elif root.is_dir() and any(not entry.name.startswith(".") for entry in root.iterdir()):
+        raise OutputError(f"{root} holds files that `memslidar simulate` did not make (no {SETTINGS_FILE}); "
+                          f"choose another --out, or move them away yourself")
     else:
         write_text(path, json.dumps(settings, sort_keys=True, indent=1) + "\n")
+
+
+def _complete_frames(layout: KittiLayout, frames: int, shard: tuple[int, int], fingerprint: str) -> tuple[set, int]:
+    """Indices of the frames of `shard` that are on disk whole (metadata of these settings, label, calib, and as many
+    time offsets as points), and how many others are on disk damaged (to be made again)."""
+    complete, damaged = set(), 0
+    for name in layout.frame_ids():
+        if not name.isdigit() or int(name) >= frames or int(name) % shard[1] != shard[0]:
+            continue
+        try:
+            stored = json.loads(layout.metadata(name).read_text(encoding="utf-8")).get("fingerprint")
+            points = layout.velodyne(name).stat().st_size
+            whole = (points % 16 == 0 and time_offset_path(layout, name).stat().st_size * 4 == points
+                     and layout.calib(name).is_file())
+            read_label(layout.label(name))
+        except (OSError, ValueError):  # missing or unreadable file, invalid JSON, malformed label
+            stored, whole = fingerprint, False
+        if stored != fingerprint:
+            raise DataFormatError(layout.metadata(name), f"frame made with other settings (fingerprint {stored}, "
+                                                         f"asked for {fingerprint}); delete the folder")
+        if whole:
+            complete.add(int(name))
+        else:
+            damaged += 1
+    return complete, damaged
+
+
+def _start_worker() -> None:
+    keep_freed_memory()
+    exit_with_parent()
 
 
 def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
                      shard: tuple[int, int] = (0, 1), progress: bool = True) -> dict:
     """Make frames 0..frames-1 of `preset` (those of `shard` (I, N): index % N == I) under `out`.
 
-    Returns dict(written, skipped, points, complete): complete = all frames exist and ImageSets are written."""
+    Frames already on disk whole are skipped; damaged ones (a truncated file, a missing label, ...) are made again.
+    Returns dict(written, skipped, remade, points, complete, fingerprint): complete = all frames exist and
+    ImageSets are written."""
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1 (1 = in this process), got {workers}")
+    if not 1 <= frames <= MAX_FRAMES:
+        raise ConfigError(f"--frames must be between 1 and {MAX_FRAMES:,} (frame ids have six digits), got {frames}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be a non-negative integer, got {seed}")
     root = Path(out)
     settings = domain_settings(preset, seed)
     _check_settings(root, settings)
     layout = KittiLayout(root)
-    existing = set(layout.frame_ids())
-    todo, skipped = [], 0
-    for index in range(shard[0], frames, shard[1]):
-        name = frame_id(index)
-        if name not in existing:
-            todo.append(index)
-            continue
-        stored = json.loads(layout.metadata(name).read_text(encoding="utf-8")).get("fingerprint")
-        if stored != settings["fingerprint"]:
-            raise DataFormatError(layout.metadata(name), f"frame made with other settings (fingerprint {stored}, "
-                                                         f"asked for {settings['fingerprint']}); delete the folder")
-        skipped += 1
-    threads = 1 if workers > 1 else 0
+    complete, remade = _complete_frames(layout, frames, shard, settings["fingerprint"])
+    indices = range(shard[0], frames, shard[1])
+    jobs = ((preset, seed, index, str(root), settings["fingerprint"], 1 if workers > 1 else 0)
+            for index in indices if index not in complete)
+    count = len(indices) - len(complete)
     keep_freed_memory()  # reuse the memory of each frame's numpy temporaries (see sim/memory.py)
-    jobs = [(preset, seed, index, str(root), settings["fingerprint"], threads) for index in todo]
-    bar = tqdm(total=len(jobs), desc=f"simulate {preset.name}", unit="frame", disable=not progress)
     points = 0
-    if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=keep_freed_memory) as pool:
-            for count in pool.map(_write_one, jobs, chunksize=4):
-                points += count
-                bar.update()
+    if workers > 1 and count > 1:
+        pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_start_worker)
     else:  # frames in threads: their compiled loops, large numpy operations and file writes run outside
         # Python's interpreter lock (Open3D's cast_rays and the Python parts do not: 1.4x one core, not 2x)
-        with ThreadPoolExecutor(FRAME_THREADS) as pool:
-            for count in pool.map(_write_one, jobs):
-                points += count
-                bar.update()
-    bar.close()
+        pool = ThreadPoolExecutor(FRAME_THREADS)
+    with pool, tqdm(total=count, desc=f"simulate {preset.name}", unit="frame", disable=not progress) as bar:
+        for points_of_frame in bounded_map(pool, _write_one, jobs, ahead=4 * max(workers, FRAME_THREADS)):
+            points += points_of_frame
+            bar.update()
     existing = set(layout.frame_ids())
     complete = all(frame_id(i) in existing for i in range(frames))
     if complete:
         write_split(layout)
-    return dict(written=len(jobs), skipped=skipped, points=int(points), complete=complete,
+    return dict(written=count, skipped=len(indices) - count, remade=remade, points=int(points), complete=complete,
                 fingerprint=settings["fingerprint"])

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.datasets.mixing import Source
-from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.errors import ConfigError, OutputError
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
-from pcdet_memslidar.reproduce import RUNS, check_run_config, frames_needed, model_config, prepare_domain
+from pcdet_memslidar.reproduce import RUNS, check_run_config, frames_needed, model_config, prepare_domain, reproduce
 from pcdet_memslidar.sim.writer import SETTINGS_FILE
 
 
@@ -56,3 +56,16 @@ def test_run_folder_of_another_config_is_refused(tmp_path):
     check_run_config(model_config("M1", "smoke", tmp_path), run_dir)  # same config: reused
     with pytest.raises(ConfigError, match="trained with another config"):
         check_run_config(model_config("M1", "smoke", tmp_path, ["OPTIMIZATION.NUM_EPOCHS", "2"]), run_dir)
+
+
+def test_out_that_holds_the_data_and_bad_counts_are_refused_before_anything_is_written(tmp_path):
+    data = tmp_path / "data"
+    with pytest.raises(OutputError, match=rf"--out {tmp_path} contains the input {data}/sim; choose --out outside"):
+        reproduce("smoke", 1, tmp_path, data)
+    with pytest.raises(OutputError, match=rf"--out {data}/real is the input {data}/real"):
+        reproduce("smoke", 1, data / "real", data)
+    for seeds, jobs, workers, message in ((0, 1, 0, "--seeds must be >= 1, got 0"), (1, 0, 0, "--jobs must be >= 1"),
+                                          (1, 1, -1, r"--workers must be >= 0 \(0: load data in the training")):
+        with pytest.raises(ConfigError, match=message):
+            reproduce("smoke", seeds, tmp_path / "out", data, workers=workers, jobs=jobs)
+    assert list(tmp_path.iterdir()) == []
