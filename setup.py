@@ -17,7 +17,7 @@ setup(
     packages=find_packages(include=["pcdet_memslidar", "pcdet_memslidar.*"]),
     package_data={"pcdet_memslidar": ["assets/*", "assets/**/*"]},
     install_requires=[
-        "torch>=2.1",  # install torch==2.13.0 (CPU wheel) first: see run.sh
+        "torch>=2.5",  # safe_globals (OpenPCDet checkpoints); install torch==2.13.0 (CPU wheel) first: see run.sh
         "numpy>=1.24",
         "numba>=0.60",  # the simulator's per-ray loops (sim/body_rays.py)
         "spconv>=2.3.6",

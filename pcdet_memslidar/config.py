@@ -3,13 +3,18 @@
 Semantics (as OpenPCDet's pcdet/config.py): a YAML file becomes an EasyDict; `_BASE_CONFIG_` may appear in any
 mapping: the base file is loaded first and the mapping's own keys are merged onto it recursively (mappings merge,
 lists and scalars replace); a mapping with `_BASE_CONFIG_` replaces whatever an outer base put under its key.
-`cfg_from_list(['A.B', 'VALUE', ...], cfg)` overrides existing keys with YAML-parsed values.
+`cfg_from_list(['A.B', 'VALUE', ...], cfg)` overrides existing (or known, see below) keys with YAML-parsed values.
 
 The fix (OpenPCDet #1185): `_BASE_CONFIG_` and `DATA_PATH` values resolve relative to the file that wrote them
 first, then to the working directory (`resolve_path`); after loading they hold absolute paths.
 
 Profiles: `PROFILE` (default 'paper') names an entry of `PROFILES: {quick: {...}, smoke: {...}}` whose overrides
 `apply_profile` merges onto the config; 'paper' is the config as written unless PROFILES defines it.
+
+Known keys: every key a config file writes must be one of the shipped SECOND config (SCHEMA_FILE, with its dataset
+config; its values are the defaults, so the schema has no second copy of them) or of OPTIONAL_KEYS; the keys of a
+profile likewise. A typo fails at load with the file, line and close match. Not checked: a MODEL section whose NAME
+differs from the schema's (another OpenPCDet module, with its own keys) and mappings inside lists.
 
 Public API:
     cfg_from_yaml_file(cfg_file, merge_to=None) -> EasyDict
@@ -25,6 +30,7 @@ Public API:
 from __future__ import annotations
 
 import difflib
+import functools
 import logging
 import re
 from pathlib import Path
@@ -37,6 +43,16 @@ from pcdet_memslidar.errors import ConfigError
 BASE_KEY = "_BASE_CONFIG_"
 PATH_KEYS = ("DATA_PATH",)  # string values resolved relative to the file that wrote them
 DEFAULT_PROFILE = "paper"
+ROOT_DIR = Path(__file__).resolve().parent.parent
+SCHEMA_FILE = ROOT_DIR / "cfgs" / "memslidar_models" / "second_person.yaml"
+# Keys a config may write beyond SCHEMA_FILE's: optional keys whose defaults live in the code that reads them, and
+# OpenPCDet's own keys for SECOND (kitti_dataset.yaml, second.yaml, its training loop) that our runtime ignores.
+OPTIONAL_KEYS = (
+    "DATA_CONFIG.TEST_SOURCE.PATH", "DATA_CONFIG.TEST_SOURCE.DOMAIN", "DATA_CONFIG.TEST_SOURCE.SEED",
+    "MODEL.BACKBONE_2D.USE_CONV_FOR_NO_STRIDE", "MODEL.DENSE_HEAD.USE_MULTIHEAD",
+    "MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.BOX_CODER_CONFIG",
+    "DATA_CONFIG.INFO_PATH", "DATA_CONFIG.GET_ITEM_LIST", "DATA_CONFIG.FOV_POINTS_ONLY", "OPTIMIZATION.LOSS_SCALE_FP16",
+)
 
 
 class _Loader(yaml.SafeLoader):
@@ -82,6 +98,20 @@ def _line_of(path: Path, needle: str) -> int | None:
     return None
 
 
+def _key_line(path: Path, keys: tuple[str, ...]) -> int | None:
+    """1-based line of the key at `keys` (a path of mapping keys from the top of the YAML file `path`), if found."""
+    node = yaml.compose(path.read_text(encoding="utf-8"), Loader=_Loader)
+    line = None
+    for key in keys:
+        if not isinstance(node, yaml.MappingNode):
+            return None
+        found = next(((k, v) for k, v in node.value if isinstance(k, yaml.ScalarNode) and k.value == key), None)
+        if found is None:
+            return None
+        line, node = found[0].start_mark.line + 1, found[1]
+    return line
+
+
 def _load_yaml_file(path: Path) -> dict:
     mapping = _parse_yaml(path.read_text(encoding="utf-8"), str(path))
     if mapping is None:
@@ -118,11 +148,62 @@ def _merge(config: dict, new: dict) -> None:
             config[key] = value
 
 
-def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...]) -> EasyDict:
-    """`node` with every `_BASE_CONFIG_` loaded and every path key made absolute (relative to `cfg_file`)."""
+@functools.cache
+def _schema() -> EasyDict:
+    """The known keys as a tree of mappings: SCHEMA_FILE (with its bases), plus OPTIONAL_KEYS (any value)."""
+    schema = _expand(_load_yaml_file(SCHEMA_FILE), SCHEMA_FILE, (SCHEMA_FILE,))
+    for dotted in OPTIONAL_KEYS:
+        *parents, leaf = dotted.split(".")
+        node = functools.reduce(dict.__getitem__, parents, schema)
+        node[leaf] = None
+    return schema
+
+
+def _schema_at(at: tuple[str, ...]) -> dict | None:
+    """The schema of the mapping at key path `at` of a config; None where the schema has no mapping."""
+    node = _schema()
+    for key in at[2:] if at[:1] == ("PROFILES",) else at:  # a profile overrides the config's own keys
+        node = node.get(key) if isinstance(node, dict) else None
+    return node if isinstance(node, dict) else None
+
+
+def _check_keys(node: dict, schema: dict | None, path: Path, at: tuple[str, ...], keys: tuple[str, ...] = ()):
+    """ConfigError naming `path`:line, the key and its close match for a key of `node` that `schema` lacks.
+
+    node: the mapping at `keys` in the file `path`, which sits at key path `at` of the whole config.
+    """
+    if schema is None or ((at + keys)[:1] == ("MODEL",) and node.get("NAME", schema.get("NAME")) != schema.get("NAME")):
+        return  # no schema here, or another OpenPCDet module with its own keys
+    for key, value in node.items():
+        if key == BASE_KEY:
+            continue
+        where = keys + (key,)
+        if key not in schema:
+            line = _key_line(path, where)
+            name = ".".join(at + where)
+            hint = _close(key, [option for option in schema if option != BASE_KEY])
+            raise ConfigError(f"{path}{f':{line}' if line else ''}: unknown key {name}{hint}"
+                              f"{'' if hint.endswith('?') else '.'} Fix the spelling or remove the key")
+        if key == "PROFILES" and not at + keys and isinstance(value, dict):  # {profile name: config overrides}
+            for profile, overrides in value.items():
+                if isinstance(overrides, dict):
+                    _check_keys(overrides, _schema(), path, (), where + (profile,))
+        elif isinstance(value, dict):
+            _check_keys(value, schema[key] if isinstance(schema[key], dict) else None, path, at, where)
+
+
+def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...], at: tuple[str, ...] | None = None) -> EasyDict:
+    """`node` with every `_BASE_CONFIG_` loaded and every path key made absolute (relative to `cfg_file`).
+
+    at: key path of `node` in the whole config, to check the keys of every base file it loads against the schema;
+    None: unchecked.
+    """
     if BASE_KEY in node:
         base = _base_file(cfg_file, node[BASE_KEY], chain)
-        result = _expand(_load_yaml_file(base), base, chain + (base,))
+        base_node = _load_yaml_file(base)
+        if at is not None:
+            _check_keys(base_node, _schema_at(at), base, at)
+        result = _expand(base_node, base, chain + (base,), at)
         result[BASE_KEY] = str(base)
     else:
         result = EasyDict()
@@ -131,7 +212,7 @@ def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...]) -> EasyD
         if key == BASE_KEY:
             continue
         if isinstance(value, dict):
-            value = _expand(value, cfg_file, chain)
+            value = _expand(value, cfg_file, chain, None if at is None else at + (key,))
         elif key in PATH_KEYS and isinstance(value, str):
             value = str(resolve_path(cfg_file, value))
         own[key] = value
@@ -148,12 +229,21 @@ def merge_new_config(config: EasyDict, new_config: dict, cfg_file: str | Path | 
 
 
 def cfg_from_yaml_file(cfg_file: str | Path, merge_to: EasyDict | None = None) -> EasyDict:
-    """Load the YAML config `cfg_file` (with its bases) into `merge_to` (a new EasyDict if None) and return it."""
+    """Load the YAML config `cfg_file` (with its bases) into `merge_to` (a new EasyDict if None) and return it.
+
+    ConfigError for a key the schema does not know (see the module docstring); a dataset config (DATASET, no
+    DATA_CONFIG) is checked as a DATA_CONFIG.
+    """
     path = Path(cfg_file)
     if not path.is_file():
         raise ConfigError(f"{cfg_file}: config file not found (working directory {Path.cwd()})")
     config = EasyDict() if merge_to is None else merge_to
-    return merge_new_config(config, _load_yaml_file(path), path)
+    mapping = _load_yaml_file(path)
+    at = ("DATA_CONFIG",) if "DATASET" in mapping and "DATA_CONFIG" not in mapping else ()
+    _check_keys(mapping, _schema_at(at), path, at)
+    path = path.resolve()
+    _merge(config, _expand(mapping, path, (path,), at))
+    return config
 
 
 def _close(key: str, options) -> str:
@@ -188,30 +278,50 @@ def _convert(text: str, current, key: str):
             value = {name.strip(): _parse_yaml(item, f"--set {key}") for name, item in pairs}
         if not isinstance(value, dict):
             raise ConfigError(f"--set {key} {text}: expected a mapping")
+        known = _known_keys(current, tuple(key.split(".")))
         for name in value:
-            if name not in current:
-                raise ConfigError(f"--set {key}: unknown key {key}.{name}{_close(name, current)}")
+            if name not in known:
+                raise ConfigError(f"--set {key}: unknown key {key}.{name}{_close(name, known)}")
         merged = EasyDict(current)
         _merge(merged, EasyDict(value))
         return merged
     return value
 
 
-def cfg_from_list(cfg_list: list[str] | None, config: EasyDict) -> None:
-    """Apply `--set` overrides ['A.B', 'VALUE', ...] to existing keys of `config` (values parsed as YAML)."""
+def _set_pairs(cfg_list: list[str] | None) -> list[tuple[str, str]]:
+    """[(KEY, VALUE), ...] of `--set` items; ConfigError naming the last item when it has no value."""
     cfg_list = list(cfg_list or [])
     if len(cfg_list) % 2:
-        raise ConfigError(f"--set needs KEY VALUE pairs, got an odd number of items: {cfg_list}")
-    for key, text in zip(cfg_list[0::2], cfg_list[1::2]):
+        last = cfg_list[-1]
+        raise ConfigError(f"--set needs KEY VALUE pairs, got an odd number of items {cfg_list}: '{last}' has no "
+                          f"value; add one (--set {last} VALUE) or remove it")
+    return list(zip(cfg_list[0::2], cfg_list[1::2]))
+
+
+def _known_keys(node: dict, at: tuple[str, ...]) -> list[str]:
+    """The keys of the config mapping `node` at key path `at`, then the schema's other keys there."""
+    return list(node) + [key for key in _schema_at(at) or {} if key not in node and key != BASE_KEY]
+
+
+def cfg_from_list(cfg_list: list[str] | None, config: EasyDict) -> None:
+    """Apply `--set` overrides ['A.B', 'VALUE', ...] to keys of `config` (values parsed as YAML); the last key may
+    also be one the schema knows and the config leaves out (OPTIONAL_KEYS)."""
+    for key, text in _set_pairs(cfg_list):
+        if key.startswith("-"):
+            raise ConfigError(f"--set {key}: '{key}' looks like an option, but everything after --set is read as "
+                              f"KEY VALUE pairs; put {key} before --set")
         node, parts = config, key.split(".")
         for depth, part in enumerate(parts):
-            if not isinstance(node, dict) or part not in node:
+            last = depth == len(parts) - 1
+            options = list(node) if isinstance(node, dict) else []
+            if last and isinstance(node, dict):
+                options = _known_keys(node, tuple(parts[:depth]))
+            if part not in options:
                 parent = ".".join(parts[:depth]) or "the config"
-                options = list(node) if isinstance(node, dict) else []
                 raise ConfigError(f"--set {key}: unknown key '{part}' in {parent}{_close(part, options)}")
-            if depth < len(parts) - 1:
+            if not last:
                 node = node[part]
-        node[parts[-1]] = _convert(str(text), node[parts[-1]], key)
+        node[parts[-1]] = _convert(str(text), node.get(parts[-1]), key)
 
 
 def _check_known(overrides: dict, config: dict, prefix: str, profile: str) -> None:
@@ -249,12 +359,10 @@ def experiment_group(cfg_file: str | Path) -> str:
 def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile: str | None = None) -> EasyDict:
     """The full config: YAML (with bases), then the profile (`profile`, a --set PROFILE, or the file's PROFILE),
     then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH."""
+    pairs = _set_pairs(set_cfgs)
     config = cfg_from_yaml_file(cfg_file)
-    set_cfgs = list(set_cfgs or [])
-    requested = dict(zip(set_cfgs[0::2], set_cfgs[1::2])).get("PROFILE")
-    apply_profile(config, profile or requested)
-    cfg_from_list([item for pair in zip(set_cfgs[0::2], set_cfgs[1::2]) if pair[0] != "PROFILE" for item in pair],
-                  config)
+    apply_profile(config, profile or dict(pairs).get("PROFILE"))
+    cfg_from_list([item for pair in pairs if pair[0] != "PROFILE" for item in pair], config)
     config.ROOT_DIR = cfg.ROOT_DIR
     config.LOCAL_RANK = config.get("LOCAL_RANK", 0)
     config.CFG_FILE = str(Path(cfg_file).resolve())
@@ -275,5 +383,5 @@ def log_config_to_file(config: dict, pre: str = "cfg", logger: logging.Logger | 
 
 
 cfg = EasyDict()
-cfg.ROOT_DIR = Path(__file__).resolve().parent.parent
+cfg.ROOT_DIR = ROOT_DIR
 cfg.LOCAL_RANK = 0

@@ -27,7 +27,7 @@ import multiprocessing
 import os
 import platform
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
@@ -38,6 +38,7 @@ import tqdm
 from pcdet_memslidar import __version__
 from pcdet_memslidar.config import cfg as global_cfg, load_config
 from pcdet_memslidar.datasets import build_dataloader
+from pcdet_memslidar.datasets.grid import check_config_grid
 from pcdet_memslidar.datasets.infos import create_domain_infos
 from pcdet_memslidar.datasets.mixing import Source, resolve_sources, select_frames, split_frames, split_sources
 from pcdet_memslidar.errors import ConfigError
@@ -52,6 +53,7 @@ from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import load_params_from_file
 from pcdet_memslidar.runtime.common import create_logger, get_device, set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
+from pcdet_memslidar.runtime.experiment import check_learning_rate, positive_count
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
@@ -72,9 +74,14 @@ BENCHMARK_RESULTS = Path("output/benchmark/model_benchmark.json")  # tools/bench
 
 def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None):
     """The experiment config cfgs/<model>.yaml with `profile` applied, then DATA_PATH = data_root (if given) and
-    the --set overrides [KEY, VALUE, ...]."""
+    the --set overrides [KEY, VALUE, ...]; checked as `memslidar train` checks it (grid, batch size, epochs, lr)."""
     overrides = (["DATA_CONFIG.DATA_PATH", str(data_root)] if data_root is not None else []) + list(set_cfgs or [])
-    return load_config(Path(global_cfg.ROOT_DIR) / "cfgs" / f"{model.lower()}.yaml", overrides, profile=profile)
+    cfg = load_config(Path(global_cfg.ROOT_DIR) / "cfgs" / f"{model.lower()}.yaml", overrides, profile=profile)
+    check_config_grid(cfg)
+    check_learning_rate(cfg)
+    for key in ("BATCH_SIZE_PER_GPU", "NUM_EPOCHS"):
+        positive_count(None, f"--set OPTIMIZATION.{key}", cfg, key)
+    return cfg
 
 
 def frames_needed(cfgs: dict) -> dict[str, Source]:

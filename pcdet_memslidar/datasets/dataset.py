@@ -6,13 +6,17 @@ metadata} and returns prepare_data(...)), evaluation and generate_prediction_dic
 from __future__ import annotations
 
 import logging
+import re
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..errors import ConfigError, DataFormatError, OutputError
 from .processor import DataProcessor, PointFeatureEncoder
+
+USER_ERRORS = (DataFormatError, ConfigError, OutputError)  # the errors whose message names the file and the fix
 
 
 class DatasetTemplate(torch.utils.data.Dataset):
@@ -34,7 +38,7 @@ class DatasetTemplate(torch.utils.data.Dataset):
         self.depth_downsample_factor = None
         self.total_epochs = 0
         self._merge_all_iters_to_one_epoch = False
-        self.rng = np.random.default_rng()
+        self.rng = np.random.default_rng(torch.initial_seed())  # a fixed torch seed gives reproducible samples
         self._worker_seed = None
 
     @property
@@ -42,7 +46,9 @@ class DatasetTemplate(torch.utils.data.Dataset):
         return "train" if self.training else "test"
 
     def reseed(self, seed) -> None:
-        """Seed the generator behind augmentation and shuffling (an int, or a sequence of ints)."""
+        """Seed the generator behind augmentation and shuffling (an int, or a sequence of ints). Until then it is
+        seeded from torch's seed (torch.initial_seed(): the one set by torch.manual_seed, as OpenPCDet's and our
+        set_random_seed do; random otherwise), so any loader with 0 workers gives reproducible samples."""
         self.rng = np.random.default_rng(seed)
 
     @property
@@ -119,3 +125,40 @@ class DatasetTemplate(torch.utils.data.Dataset):
                 batch[key] = np.stack(items, axis=0)
         batch["batch_size"] = len(batch_list)
         return batch
+
+
+def worker_error(error: Exception) -> Exception | None:
+    """The error of ours (USER_ERRORS) that a DataLoader worker raised, rebuilt with its own message from the text
+    torch re-raises it as ('Caught DataFormatError in DataLoader worker process 0. Original Traceback ...'); None
+    when `error` is anything else."""
+    text = str(error)
+    header = re.match(r"Caught (\w+) in DataLoader worker process \d+\.\n", text)
+    kind = {cls.__name__: cls for cls in USER_ERRORS}.get(header.group(1)) if header else None
+    marker = f"\n{kind.__module__}.{kind.__qualname__}: " if kind else ""
+    if not marker or marker not in text:
+        return None
+    message = text[text.rindex(marker) + len(marker):].rstrip("\n")
+    if kind is not DataFormatError:
+        return kind(message)
+    where, _, rest = message.partition(": ")  # DataFormatError's message is '<path>[:<line>]: <what and fix>'
+    path_line = re.fullmatch(r"(.+):(\d+)", where)
+    return DataFormatError(path_line.group(1), rest, int(path_line.group(2))) if path_line else \
+        DataFormatError(where, rest)
+
+
+def iterate_batches(loader):
+    """The batches of `loader`; an error of ours raised inside a DataLoader worker comes out as itself (naming the
+    file and the fix) instead of torch's wrapper around the worker's traceback."""
+    try:
+        yield from loader
+    except Exception as error:
+        original = worker_error(error)
+        if original is None:
+            raise
+        # torch's frames in these tracebacks hold the loader's iterator in reference cycles; dropping them frees
+        # it now, which ends its workers (a garbage collection later would wait 5 s for each)
+        chained = error
+        while chained is not None:
+            chained.__traceback__ = None
+            chained = chained.__context__
+        raise original from None

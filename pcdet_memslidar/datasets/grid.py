@@ -12,6 +12,21 @@ from ..errors import ConfigError
 
 Z_CELLS = 40
 XY_MULTIPLE = 16
+RANGE_KEY, RANGE_FORMAT = "DATA_CONFIG.POINT_CLOUD_RANGE", "[x_min, y_min, z_min, x_max, y_max, z_max] in m"
+VOXEL_KEY, VOXEL_FORMAT = "VOXEL_SIZE (DATA_CONFIG.DATA_PROCESSOR, transform_points_to_voxels)", "[vx, vy, vz] in m"
+
+
+def config_numbers(value, count: int, key: str, layout: str) -> np.ndarray:
+    """(count,) float64 of a config value that must be `count` finite numbers laid out as `layout`; ConfigError
+    naming `key`, the value and the fix otherwise (a scalar, a wrong length, text, NaN)."""
+    try:
+        numbers = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        numbers = np.zeros(0)
+    if numbers.shape != (count,) or not np.isfinite(numbers).all():
+        raise ConfigError(f"{key} is {value!r}: it needs {count} finite numbers {layout}; fix it in the config "
+                          f"(or --set)")
+    return numbers
 
 
 def grid_size(point_cloud_range, voxel_size) -> np.ndarray:
@@ -19,11 +34,8 @@ def grid_size(point_cloud_range, voxel_size) -> np.ndarray:
 
     ConfigError when the range is empty or not a whole number of voxels.
     """
-    point_cloud_range = np.asarray(point_cloud_range, dtype=np.float64)
-    voxel_size = np.asarray(voxel_size, dtype=np.float64)
-    if point_cloud_range.shape != (6,) or voxel_size.shape != (3,):
-        raise ConfigError(f"POINT_CLOUD_RANGE needs 6 numbers and VOXEL_SIZE 3, got {point_cloud_range.tolist()} "
-                          f"and {voxel_size.tolist()}")
+    point_cloud_range = config_numbers(point_cloud_range, 6, RANGE_KEY, RANGE_FORMAT)
+    voxel_size = config_numbers(voxel_size, 3, VOXEL_KEY, VOXEL_FORMAT)
     span = point_cloud_range[3:] - point_cloud_range[:3]
     if (span <= 0).any() or (voxel_size <= 0).any():
         raise ConfigError(f"POINT_CLOUD_RANGE {point_cloud_range.tolist()} must have max > min and VOXEL_SIZE "
@@ -38,8 +50,8 @@ def grid_size(point_cloud_range, voxel_size) -> np.ndarray:
 
 def check_second_grid(point_cloud_range, voxel_size) -> np.ndarray:
     """(3,) cell counts (x, y, z) after checking SECOND's rules; ConfigError with sizes that would fit otherwise."""
-    point_cloud_range = np.asarray(point_cloud_range, dtype=np.float64)
-    voxel_size = np.asarray(voxel_size, dtype=np.float64)
+    point_cloud_range = config_numbers(point_cloud_range, 6, RANGE_KEY, RANGE_FORMAT)
+    voxel_size = config_numbers(voxel_size, 3, VOXEL_KEY, VOXEL_FORMAT)
     span = point_cloud_range[3:] - point_cloud_range[:3]
     try:
         cells = grid_size(point_cloud_range, voxel_size)
@@ -54,11 +66,21 @@ def check_second_grid(point_cloud_range, voxel_size) -> np.ndarray:
 
 
 def check_config_grid(cfg) -> np.ndarray | None:
-    """Check a full config (DATA_CONFIG + MODEL) at load time; None when the model is not a SECOND-style network."""
-    model = cfg.get("MODEL", {})
-    if model.get("BACKBONE_3D", {}).get("NAME") != "VoxelBackBone8x":
+    """Check a config (DATA_CONFIG + MODEL, or a dataset config alone) at load time: POINT_CLOUD_RANGE, and for a
+    SECOND-style network its voxel grid (returns the cell counts; None for other networks)."""
+    try:
+        return _check_grid(cfg)
+    except ConfigError as error:
+        if "CFG_FILE" not in cfg:
+            raise
+        raise ConfigError(f"{cfg.CFG_FILE}: {error}") from None
+
+
+def _check_grid(cfg) -> np.ndarray | None:
+    data_config = cfg.DATA_CONFIG if "DATA_CONFIG" in cfg else cfg
+    config_numbers(data_config.get("POINT_CLOUD_RANGE"), 6, RANGE_KEY, RANGE_FORMAT)
+    if cfg.get("MODEL", {}).get("BACKBONE_3D", {}).get("NAME") != "VoxelBackBone8x":
         return None
-    data_config = cfg.DATA_CONFIG
     voxel_size = next((step.VOXEL_SIZE for step in data_config.DATA_PROCESSOR
                        if step.NAME == "transform_points_to_voxels"), None)
     if voxel_size is None:

@@ -32,6 +32,7 @@ INFO_FILE = "memslidar_infos.pkl"
 DBINFO_FILE = "memslidar_dbinfos.pkl"
 DATABASE_DIR = "gt_database"
 CREATE_COMMAND = "`memslidar create-infos --cfg <the config you train or test with>`"
+REBUILD_COMMAND = "`memslidar create-infos --cfg <the config you train or test with> --force`"
 
 
 def layout_fingerprint(layout: KittiLayout) -> str:
@@ -53,18 +54,44 @@ def _check_domain(source: Source) -> KittiLayout:
     return layout
 
 
+def _read_pickle(path: Path, source: Source, what: str, keys: tuple[str, ...] = ()) -> dict:
+    """The dict pickled in `path` (with `keys`); DataFormatError naming the file and the command that rebuilds it
+    when it is truncated, corrupt or not what create-infos writes."""
+    try:
+        stored = pickle.loads(path.read_bytes())
+    except Exception as error:  # a damaged pickle fails with many error types
+        reason = f"truncated or corrupt: {type(error).__name__}: {error}"
+    else:
+        missing = [key for key in keys if key not in stored] if isinstance(stored, dict) else None
+        if missing == []:
+            return stored
+        reason = f"not what create-infos writes: a {type(stored).__name__}{f' without {missing}' if missing else ''}"
+    raise DataFormatError(path, f"{what} of source '{source.name}' cannot be read ({reason}): rebuild it with "
+                                f"{REBUILD_COMMAND}")
+
+
+def _read_infos(info_path: Path, source: Source) -> dict:
+    """{'fingerprint', 'infos'} of an info file; DataFormatError when it cannot be read."""
+    return _read_pickle(info_path, source, "info file", ("fingerprint", "infos"))
+
+
 def create_domain_infos(source: Source, force: bool = False) -> list[dict]:
-    """Write (or keep, when up to date and not `force`) the infos and gt database of `source`'s folder."""
+    """Write (or keep, when up to date and not `force`) the infos and gt database of `source`'s folder; an info
+    file that cannot be read is rebuilt."""
     layout = _check_domain(source)
     info_path = source.root / INFO_FILE
     fingerprint = layout_fingerprint(layout)
     if info_path.is_file() and not force:
-        stored = pickle.loads(info_path.read_bytes())
-        if stored.get("fingerprint") == fingerprint:
-            return stored["infos"]
+        try:
+            stored = _read_infos(info_path, source)
+        except DataFormatError as error:
+            print(f"{error}; rebuilding it")
+        else:
+            if stored["fingerprint"] == fingerprint:
+                return stored["infos"]
     info_path.unlink(missing_ok=True)
     infos, db_infos = [], defaultdict(list)
-    with atomic_dir(source.root / DATABASE_DIR) as database:
+    with atomic_dir(source.root / DATABASE_DIR, "memslidar create-infos") as database:
         for frame_id in tqdm(layout.frame_ids(), desc=f"infos + gt database of {source.name}", leave=False):
             frame = read_frame(layout, frame_id)
             points, boxes, names = frame["points"], frame["gt_boxes"], np.asarray(frame["gt_names"])
@@ -96,8 +123,8 @@ def load_domain_infos(source: Source) -> list[dict]:
     info_path = source.root / INFO_FILE
     if not info_path.is_file():
         raise DataFormatError(info_path, f"info file of source '{source.name}' is missing: run {CREATE_COMMAND}")
-    stored = pickle.loads(info_path.read_bytes())
-    if stored.get("fingerprint") != layout_fingerprint(layout):
+    stored = _read_infos(info_path, source)
+    if stored["fingerprint"] != layout_fingerprint(layout):
         raise DataFormatError(info_path, f"info file of source '{source.name}' no longer matches the frames in "
                                          f"{source.root} (frames were added or changed): run {CREATE_COMMAND}")
     return stored["infos"]
@@ -108,7 +135,7 @@ def load_db_infos(source: Source) -> dict:
     path = source.root / DBINFO_FILE
     if not path.is_file():
         raise DataFormatError(path, f"gt database of source '{source.name}' is missing: run {CREATE_COMMAND}")
-    return pickle.loads(path.read_bytes())
+    return _read_pickle(path, source, "gt database")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,7 +18,7 @@ from ..io.layout import KittiLayout
 from .augmentor import DataAugmentor, GtDatabase
 from .dataset import DatasetTemplate
 from .infos import load_db_infos, load_domain_infos
-from .mixing import select_frames, split_frames, split_sources
+from .mixing import make_frames_command, select_frames, split_frames, split_settings, split_sources
 
 MAX_REPLACEMENTS = 100  # training frames left without boxes are replaced by random others, at most this often
 
@@ -41,16 +41,20 @@ class MEMSLidarDataset(*_template_bases()):
         DatasetTemplate.__init__(self, dataset_cfg=dataset_cfg, class_names=class_names, training=training,
                                  root_path=root_path, logger=logger)
         self.split = dataset_cfg.DATA_SPLIT[self.mode]
-        val_fraction = float(dataset_cfg.MIX.get("VAL_FRACTION", 0.3))
-        split_seed = int(dataset_cfg.MIX.get("SPLIT_SEED", 0))
+        val_fraction, split_seed = split_settings(dataset_cfg.MIX)
         self.sources = split_sources(dataset_cfg, self.split, self.root_path)
         self.infos, databases = [], {}
         for source in self.sources:
+            self._check_folder(source)
             domain_infos = load_domain_infos(source)
             chosen = select_frames(source, [info["frame_id"] for info in domain_infos], source.root)
             frame_ids = set(split_frames(chosen, self.split, val_fraction, split_seed))
-            self.infos += [{**info, "source": source.name, "root": source.root}
-                           for info in domain_infos if info["frame_id"] in frame_ids]
+            infos = [{**info, "source": source.name, "root": source.root}
+                     for info in domain_infos if info["frame_id"] in frame_ids]
+            for info in infos:  # a 'pedestrian' box would silently be background
+                kitti.check_class_case(KittiLayout(source.root).label(info["frame_id"]), info["annos"]["name"],
+                                       self.class_names)
+            self.infos += infos
             if training:
                 databases[source.name] = self._gt_database(source, frame_ids)
         if training:
@@ -58,6 +62,18 @@ class MEMSLidarDataset(*_template_bases()):
             self.data_augmentor = DataAugmentor(dataset_cfg.DATA_AUGMENTOR, self.class_names, databases)
         self.logger.info(f"MEMSLidarDataset {self.split}: {len(self.infos)} frames from "
                          f"{', '.join(f'{s.name} ({self.source_counts().get(s.name, 0)})' for s in self.sources)}")
+
+    def _check_folder(self, source) -> None:
+        """DataFormatError naming the folder, the config key and the fixes when `source`'s folder is missing."""
+        if source.root.is_dir():
+            return
+        key = "DATA_CONFIG.TEST_SOURCE" if self.split == "test" else "DATA_CONFIG.MIX.SOURCES"
+        folders = sorted(path.name for path in self.root_path.iterdir() if path.is_dir()) \
+            if self.root_path.is_dir() else []
+        raise DataFormatError(source.root, f"folder of source '{source.name}' ({key}, split '{self.split}') not "
+                                           f"found; DATA_PATH {self.root_path} holds {folders or 'no folders'}: fix "
+                                           f"the source's NAME or PATH, or make its frames with "
+                                           f"{make_frames_command(source, source.count)}")
 
     @staticmethod
     def _gt_database(source, frame_ids: set[str]) -> GtDatabase:

@@ -39,10 +39,26 @@ class Source:
             object.__setattr__(self, "domain", self.name)
 
 
-def _source(entry, data_path: Path, count: int | None) -> Source:
-    """The Source of a MIX.SOURCES or TEST_SOURCE entry {NAME, PATH?, DOMAIN?, SEED?}."""
-    return Source(entry.NAME, data_path / entry.get("PATH", entry.NAME), count, entry.get("DOMAIN", entry.NAME),
-                  int(entry.get("SEED", 0)))
+def check_seed(seed, key: str) -> int:
+    """`seed` if it is a non-negative integer, else ConfigError naming the config `key`, the value and the fix."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"{key} is {seed!r}: a seed must be a non-negative integer (0, 1, ...); fix it in the config "
+                          f"(or --set)")
+    return seed
+
+
+def split_settings(mix_cfg) -> tuple[float, int]:
+    """(VAL_FRACTION, SPLIT_SEED) of DATA_CONFIG.MIX, defaults (0.3, 0): how stable_split cuts each source."""
+    seed = check_seed(mix_cfg.get("SPLIT_SEED", 0), "DATA_CONFIG.MIX.SPLIT_SEED")
+    return float(mix_cfg.get("VAL_FRACTION", 0.3)), seed
+
+
+def _source(entry, data_path: Path, count: int | None, key: str) -> Source:
+    """The Source of the MIX.SOURCES or TEST_SOURCE entry {NAME, PATH?, DOMAIN?, SEED?} at config `key`."""
+    if not isinstance(entry, dict) or not entry.get("NAME"):
+        raise ConfigError(f"{key} is {entry!r}: a source needs a NAME, e.g. {{NAME: industrial}}")
+    seed = check_seed(entry.get("SEED", 0), f"{key}.SEED (source '{entry.NAME}')")
+    return Source(entry.NAME, data_path / entry.get("PATH", entry.NAME), count, entry.get("DOMAIN", entry.NAME), seed)
 
 
 def source_counts(mix_cfg) -> dict[str, int]:
@@ -77,7 +93,8 @@ def source_counts(mix_cfg) -> dict[str, int]:
 def resolve_sources(mix_cfg, data_path: Path) -> list[Source]:
     """The mix's sources with their folders (PATH, relative to DATA_PATH, else DATA_PATH/<NAME>) and counts."""
     counts = source_counts(mix_cfg)
-    return [_source(source, data_path, counts[source.NAME]) for source in mix_cfg.SOURCES]
+    return [_source(source, data_path, counts[source.NAME], f"DATA_CONFIG.MIX.SOURCES[{index}]")
+            for index, source in enumerate(mix_cfg.SOURCES)]
 
 
 def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
@@ -85,7 +102,7 @@ def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
     if split in ("train", "val"):
         return [source for source in resolve_sources(data_cfg.MIX, data_path) if source.count > 0]
     if split == "test":
-        return [_source(data_cfg.TEST_SOURCE, data_path, None)]
+        return [_source(data_cfg.get("TEST_SOURCE"), data_path, None, "DATA_CONFIG.TEST_SOURCE")]
     raise ConfigError(f"DATA_CONFIG.DATA_SPLIT: unknown split {split!r}; use train, val (the mix) or test "
                       f"(DATA_CONFIG.TEST_SOURCE)")
 

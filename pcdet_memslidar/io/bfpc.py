@@ -256,16 +256,22 @@ def _parse_frame(buf: bytes, span: tuple[int, int]) -> BfpcFrame:
 
 
 def _decompress(path: Path) -> bytes:
+    """The decompressed bytes of a gzip file; DataFormatError naming the file when it is not gzip or is damaged."""
     try:
-        with gzip.open(path, "rb") as stream:
-            return stream.read()
+        with open(path, "rb") as file:
+            if file.read(2) != b"\x1f\x8b":
+                raise DataFormatError(path, "not a gzip stream (it does not start with the gzip bytes 1f 8b): a .bfpc "
+                                            "recording is gzip-compressed; check that the file is a Blickfeld "
+                                            "point-cloud recording")
+            file.seek(0)
+            with gzip.GzipFile(fileobj=file) as stream:
+                return stream.read()
     except FileNotFoundError:
         raise DataFormatError(path, "file not found: give the path of a .bfpc recording") from None
-    except gzip.BadGzipFile as error:
-        raise DataFormatError(path, f"not a gzip stream ({error}): a .bfpc recording is gzip-compressed; "
-                                    "check that the file is a Blickfeld point-cloud recording") from None
-    except (EOFError, zlib.error, OSError) as error:
+    except (gzip.BadGzipFile, EOFError, zlib.error) as error:  # CRC or length check failed, bad deflate data, cut off
         raise DataFormatError(path, f"corrupt or truncated gzip data ({error}): copy the recording again") from None
+    except OSError as error:
+        raise DataFormatError(path, f"cannot be read ({error.strerror or error})") from None
 
 
 def _messages(path: Path, buf: bytes):

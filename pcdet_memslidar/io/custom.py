@@ -23,7 +23,9 @@ from tqdm import tqdm
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout, read_frame, stable_split
-from pcdet_memslidar.utils.atomic import atomic_dir, write_bytes, write_text
+from pcdet_memslidar.utils.atomic import atomic_dir, refuse_overlap, write_bytes, write_text
+
+COMMAND = "memslidar export-custom"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
 
 
 def read_custom_points(path: str | Path) -> np.ndarray:
@@ -96,9 +98,11 @@ def write_custom_label(path: str | Path, names, boxes: np.ndarray) -> None:
 
 
 def export_custom(kitti_root: str | Path, out_root: str | Path) -> int:
-    """Convert our KITTI layout at `kitti_root` into OpenPCDet's custom layout at `out_root` (replaced whole,
-    atomically). ImageSets train/val are copied; when the KITTI layout has none, stable_split's are written.
+    """Convert our KITTI layout at `kitti_root` into OpenPCDet's custom layout at `out_root`, written atomically;
+    `out_root` must be new, empty or an earlier export (replaced whole), and must not be or contain `kitti_root`
+    (OutputError). ImageSets train/val are copied; when the KITTI layout has none, stable_split's are written.
     Returns the number of frames."""
+    refuse_overlap(out_root, [kitti_root], "OUT_ROOT")
     layout = KittiLayout(kitti_root)
     frame_ids = layout.frame_ids()
     if not frame_ids:
@@ -107,7 +111,7 @@ def export_custom(kitti_root: str | Path, out_root: str | Path) -> int:
         splits = {name: kitti.read_image_set(layout.image_set(name)) for name in ("train", "val")}
     else:
         splits = dict(zip(("train", "val"), stable_split(frame_ids)))
-    with atomic_dir(out_root) as tmp:
+    with atomic_dir(out_root, COMMAND) as tmp:
         for frame_id in tqdm(frame_ids, desc=f"export {Path(out_root).name}", unit="frame"):
             frame = read_frame(layout, frame_id)
             write_custom_points(tmp / "points" / f"{frame_id}.npy", frame["points"])
@@ -119,7 +123,8 @@ def export_custom(kitti_root: str | Path, out_root: str | Path) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("kitti_root", type=Path, help="a KITTI-layout dataset, e.g. data/memslidar/sim")
-    parser.add_argument("out_root", type=Path, help="folder to (re)write in OpenPCDet's custom layout")
+    parser.add_argument("out_root", type=Path, help="folder to write in OpenPCDet's custom layout: new, empty or "
+                                                    "an earlier export (replaced whole)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -19,6 +19,7 @@ import json
 import re
 import tempfile
 import zipfile
+import zlib
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,8 +64,11 @@ def open_export(src: str | Path) -> Iterator[Path]:
     if not zipfile.is_zipfile(src):
         raise DataFormatError(src, "neither a folder nor a zip archive: give the CVAT export (.zip) or its folder")
     with tempfile.TemporaryDirectory(prefix="memslidar-cvat-") as folder:
-        with zipfile.ZipFile(src) as archive:
-            archive.extractall(folder)
+        try:
+            with zipfile.ZipFile(src) as archive:
+                archive.extractall(folder)
+        except (zipfile.BadZipFile, EOFError, zlib.error) as error:  # bad CRC-32, damaged or cut-off member
+            raise DataFormatError(src, f"corrupt zip archive ({error}): export it from CVAT or copy it again") from None
         yield Path(folder)
 
 
@@ -97,22 +101,32 @@ def _cuboids(path: Path, where: list[str], labels, centers, rotations, sizes) ->
 
 
 # ---------------------------------------------------------------- Sly Point Cloud Format 1.0
+def _sly_name(cloud: Path) -> str:
+    """`<dataset>/<cloud name>` of <root>/<dataset>/pointcloud/<cloud name>.pcd."""
+    return f"{cloud.parent.parent.name}/{cloud.stem}"
+
+
 def read_sly_export(root: str | Path) -> list[CvatFrame]:
-    """Frames of an unpacked "Sly Point Cloud Format 1.0" export, sorted by name; clouds without an annotation
-    file have no cuboids; an annotation without its cloud raises."""
+    """Frames of an unpacked "Sly Point Cloud Format 1.0" export, named `<dataset>/<cloud name>` (a project export
+    holds one dataset folder per task, whose clouds may share names) and sorted by name; clouds without an
+    annotation file have no cuboids; an annotation without its cloud raises."""
     root = Path(root)
     if not (root / "meta.json").is_file():
         raise DataFormatError(root / "meta.json", "missing: not a Sly Point Cloud export (export from CVAT with "
                                                   "'Sly Point Cloud Format 1.0')")
     frames = {}
     for cloud in sorted(root.glob("*/pointcloud/*.pcd")):
-        frames[cloud.stem] = CvatFrame(cloud.stem, cloud, [], np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+        name = _sly_name(cloud)
+        frames[name] = CvatFrame(name, cloud, [], np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
     for ann_path in sorted(root.glob("*/ann/*.json")):
         cloud = ann_path.parent.parent / "pointcloud" / ann_path.name[:-len(".json")]
         if not cloud.is_file():
             raise DataFormatError(ann_path, f"frame-list mismatch: its point cloud {cloud} is missing from the export")
         try:
             ann = json.loads(ann_path.read_text(encoding="utf-8"))
+            if not isinstance(ann, dict):
+                raise TypeError(f"the file holds a JSON {type(ann).__name__}, not an object with 'objects' and "
+                                "'figures'")
             classes = {obj["key"]: obj["classTitle"] for obj in ann.get("objects", [])}
             figures = [f for f in ann.get("figures", []) if f.get("geometryType", "cuboid_3d") == "cuboid_3d"]
             for figure in figures:
@@ -121,12 +135,13 @@ def read_sly_export(root: str | Path) -> list[CvatFrame]:
             where = [f"figure {figure.get('key', i)}" for i, figure in enumerate(figures)]
             geometry = [[[float(f["geometry"][part][axis]) for axis in "xyz"]
                          for part in ("position", "rotation", "dimensions")] for f in figures]
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as error:
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as error:
             raise DataFormatError(ann_path, f"not a Sly point-cloud annotation ({type(error).__name__}: {error})") from None
         labels, centers, rotations, sizes = _cuboids(
             ann_path, where, [classes[f["objectKey"]] for f in figures], [g[0] for g in geometry],
             [euler_xyz(*g[1]) for g in geometry], [g[2] for g in geometry])
-        frames[cloud.stem] = CvatFrame(cloud.stem, cloud, labels, centers, rotations, sizes)
+        name = _sly_name(cloud)
+        frames[name] = CvatFrame(name, cloud, labels, centers, rotations, sizes)
     if not frames:
         raise DataFormatError(root, "no point clouds (*/pointcloud/*.pcd) in the Sly export")
     return [frames[name] for name in sorted(frames, key=natural_key)]
@@ -139,13 +154,20 @@ def _frame_names(root: Path) -> dict[int, str]:
     if not listing.is_file():
         clouds = sorted((root / "velodyne_points" / "data").glob("*.pcd"), key=lambda p: natural_key(p.stem))
         return {int(p.stem) if p.stem.isdigit() else i: p.stem for i, p in enumerate(clouds)}
-    names = {}
+    names, first_line = {}, {}  # first_line: ("frame index", index) or ("name", name) -> the line listing it
     for number, line in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
         if line.strip() and not line.startswith("#"):
             index, _, name = line.strip().partition(" ")
-            if not index.isdigit() or not name:
+            name = name.strip()
+            if not index.isdecimal() or not name:
                 raise DataFormatError(listing, f"expected 'INDEX NAME', got {line!r}", line=number)
-            names[int(index)] = name.strip()
+            for key in (("frame index", int(index)), ("name", name)):
+                if key in first_line:
+                    raise DataFormatError(listing, f"{key[0]} {key[1]!r} is listed again (first on line "
+                                                   f"{first_line[key]}); every frame needs its own index and name",
+                                          line=number)
+                first_line[key] = number
+            names[int(index)] = name
     return names
 
 
@@ -177,7 +199,11 @@ def read_kitti_raw_export(root: str | Path, convention: str = "cvat") -> list[Cv
     for t, tracklet in enumerate(tracklets.findall("item")):
         label = (tracklet.findtext("objectType") or "").strip()
         h, w, l = (_number(xml_path, tracklet, tag, f"tracklet {t}") for tag in ("h", "w", "l"))
-        first = int(_number(xml_path, tracklet, "first_frame", f"tracklet {t}"))
+        first = (tracklet.findtext("first_frame") or "").strip()
+        if not first.isdecimal():
+            raise DataFormatError(xml_path, f"tracklet {t}: <first_frame> {first!r} must be a frame index (an "
+                                            "integer >= 0)")
+        first = int(first)
         poses = tracklet.find("poses")
         for p, pose in enumerate([] if poses is None else poses.findall("item")):
             where = f"tracklet {t} ({label}) pose {p}"

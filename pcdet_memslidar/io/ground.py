@@ -35,8 +35,9 @@ def parse_mount(text: str) -> Mount:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) not in (2, 3) or values[0] <= 0:
-        raise ValueError(f"--mount {text!r}: expected HEIGHT,TILT[,ROLL] in metres and degrees, height > 0, e.g. 4,16")
+    if len(values) not in (2, 3) or not np.isfinite(values).all() or values[0] <= 0:
+        raise ValueError(f"--mount {text!r}: expected HEIGHT,TILT[,ROLL] as finite numbers in metres and degrees, "
+                         "height > 0, e.g. 4,16")
     return Mount(*values)
 
 

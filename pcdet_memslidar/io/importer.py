@@ -6,6 +6,7 @@
     -> per frame: normalise points and cuboids, count what needs attention, write it (io.layout.write_frame)
     -> write the 70/30 split and the validation report
     all inside a temporary folder that replaces --out only when everything succeeded.
+--out must be new, empty or an earlier import (replaced with --overwrite), and must not be or contain --src.
 """
 from __future__ import annotations
 
@@ -21,20 +22,21 @@ import numpy as np
 from tqdm import tqdm
 
 from pcdet_memslidar import __version__
-from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import cvat, ground
 from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
-from pcdet_memslidar.utils.atomic import atomic_dir, write_text
+from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
 
 FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
 POINT_CLOUD_RANGE = (2.56, -23.04, -0.5, 40.96, 23.04, 2.5)  # POINT_CLOUD_RANGE of cfgs/dataset_configs [m]
 MIN_BOX_POINTS = 5
 GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
 REPORT_NAME = "import_report.json"
+COMMAND = "memslidar import"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
 
 
 @dataclass
@@ -104,7 +106,8 @@ def _frame_report(points: np.ndarray, boxes: np.ndarray, point_cloud_range: np.n
 def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mount_entry: dict, fmt: str,
                   src: Path, skip_unknown: bool = False, point_cloud_range=POINT_CLOUD_RANGE,
                   val_fraction: float = 0.3, seed: int = 0) -> dict:
-    """Normalise and write `frames` into a fresh dataset at `out` (replaced whole on success); return the report."""
+    """Normalise and write `frames` into a fresh dataset at `out` (replaced whole on success: see
+    utils.atomic.atomic_dir); return the report."""
     labelled = [frame.cuboids for frame in frames if frame.cuboids is not None]
     masks, unknown = cvat.person_mask(labelled, skip_unknown, src)
     person = iter(masks)
@@ -112,7 +115,7 @@ def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mou
     report = {"format": fmt, "source": str(src), "out": str(out), "package_version": __version__,
               "mount": mount_entry, "point_cloud_range": point_cloud_range.tolist(), "min_box_points": MIN_BOX_POINTS,
               "skipped_unknown_labels": dict(sorted(unknown.items())), "per_frame": []}
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, COMMAND) as tmp:
         layout = KittiLayout(tmp)
         for index, frame in enumerate(tqdm(frames, desc="import", unit="frame")):
             frame_id = f"{index:06d}"
@@ -152,13 +155,20 @@ def _totals(per_frame: list[dict]) -> dict:
 
 def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
                    estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
-                   point_cloud_range=POINT_CLOUD_RANGE, val_fraction: float = 0.3) -> dict:
-    """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report."""
+                   point_cloud_range=POINT_CLOUD_RANGE, val_fraction: float = 0.3, overwrite: bool = True) -> dict:
+    """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report.
+    `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not be or contain `src`:
+    OutputError otherwise."""
     if fmt not in FORMATS:
         raise ConfigError(f"unknown format {fmt!r}; use one of {', '.join(FORMATS)}")
     if mount is not None and estimate_ground:
         raise ConfigError("give either a mount or estimate_ground, not both")
     src, out = Path(src), Path(out)
+    refuse_overlap(out, [src], "--out")
+    check_output_folder(out, COMMAND)
+    if not overwrite and out.is_dir() and any(out.iterdir()):
+        raise OutputError(f"--out {out} holds an earlier import; pass --overwrite to replace it, or choose a new "
+                          "folder")
     if fmt.startswith("cvat"):
         with cvat.open_export(src) as root:
             frames = list_frames(fmt, src, root, convention)
@@ -213,19 +223,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cvat: sizes and centre as CVAT/Datumaro write them; kitti: the KITTI raw devkit's")
     parser.add_argument("--point-cloud-range", type=float, nargs=6, default=list(POINT_CLOUD_RANGE),
                         metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), help="range for the out-of-range count [m]")
-    parser.add_argument("--overwrite", action="store_true", help="replace --out if it already holds files")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier import")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.out.exists() and any(args.out.iterdir()) and not args.overwrite:
-        print(f"error: {args.out} already holds files; pass --overwrite to replace it", file=sys.stderr)
-        return 2
     try:
         report = import_dataset(args.format, args.src, args.out, args.mount, args.estimate_ground,
-                                args.skip_unknown_labels, args.kitti_raw_convention, args.point_cloud_range)
-    except (DataFormatError, ConfigError, ValueError) as error:
+                                args.skip_unknown_labels, args.kitti_raw_convention, args.point_cloud_range,
+                                overwrite=args.overwrite)
+    except (DataFormatError, ConfigError, ValueError) as error:  # OutputError is a ValueError too
         print(f"error: {error}\n(nothing was written to {args.out})", file=sys.stderr)
-        return 1
+        return 2 if isinstance(error, OutputError) else 1
     print(format_report(report))
     print(f"report: {args.out / REPORT_NAME}")
     return 0

@@ -3,6 +3,7 @@
 Public API:
     read_points(path) -> (N, 4) float32 [x, y, z, intensity]        write_points(path, points)
     read_label(path) -> KittiLabel                                    write_label(path, label)
+    object_line(path, name) -> int | None                             check_class_case(path, names, class_names)
     boxes_from_label(label, calib) -> (M, 7) float64 LiDAR boxes [x, y, z_center, dx, dy, dz, heading]
     label_from_boxes(names, boxes, calib, scores=None) -> KittiLabel
     read_calib(path) -> Calibration                                   write_calib(path, calib)
@@ -29,6 +30,7 @@ from pcdet_memslidar.utils.atomic import write_bytes, write_text
 POINT_BYTES = 16  # float32 x, y, z, intensity
 IMAGE_SIZE = (1242, 375)  # (width, height) [px] of the virtual camera's image, as KITTI's
 DONT_CARE = "DontCare"  # KITTI's ignore regions: sizes -1 are allowed on these lines only
+KITTI_CLASSES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc", DONT_CARE)
 
 
 def _wrap_angle(angle: np.ndarray) -> np.ndarray:
@@ -37,10 +39,11 @@ def _wrap_angle(angle: np.ndarray) -> np.ndarray:
 
 
 def _read_text(path: Path) -> str:
+    """The text of a UTF-8 file, without the byte-order mark some editors write first."""
     if not path.is_file():
         raise DataFormatError(path, "file not found")
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as error:
         raise DataFormatError(path, f"not a UTF-8 text file ({error.reason})") from None
 
@@ -158,6 +161,23 @@ def read_label(path: str | Path) -> KittiLabel:
         names.append(name)
         rows.append(values)
     return _label_from_rows(names, np.array(rows, dtype=np.float64), bool(with_score))
+
+
+def object_line(path: str | Path, name: str) -> int | None:
+    """1-based line of the first object named `name` in the label file `path` (None if there is none)."""
+    lines = _read_text(Path(path)).splitlines()
+    return next((number for number, text in enumerate(lines, start=1) if text.split()[:1] == [name]), None)
+
+
+def check_class_case(path: str | Path, names, class_names) -> None:
+    """DataFormatError naming `path`:line for an object of the label file `path` (its names (M,)) whose class is one
+    of `class_names` in another case ('pedestrian'): names are case-sensitive, so it would silently not count."""
+    wanted = {str(name).lower(): str(name) for name in class_names}
+    for name in sorted(set(map(str, names)) - set(wanted.values())):
+        if name.lower() in wanted:
+            raise DataFormatError(path, f"class {name!r} is not {wanted[name.lower()]!r} (class names are "
+                                        f"case-sensitive), so its objects would not count; rename it to "
+                                        f"{wanted[name.lower()]}", object_line(path, name))
 
 
 def write_label(path: str | Path, label: KittiLabel) -> None:

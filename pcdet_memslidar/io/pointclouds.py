@@ -54,9 +54,15 @@ def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path) -> Loaded
     intensity_name = next((names[n] for n in INTENSITY_FIELDS if n in names), None)
     time_name = next((names[n] for n in TIME_FIELDS if n in names), None)
     intensity = fields[intensity_name].astype(np.float32) if intensity_name else np.zeros(len(xyz), np.float32)
+    time = fields[time_name].astype(np.float64) if time_name else None
     valid = np.isfinite(xyz).all(axis=1) & np.any(xyz != 0.0, axis=1)
+    for name, values in ((intensity_name, intensity), (time_name, time)):
+        bad = np.flatnonzero(valid & ~np.isfinite(values)) if name else []
+        if len(bad):
+            raise DataFormatError(path, f"{len(bad)} point(s) with valid x, y, z have a NaN or infinite {name!r}, "
+                                        f"the first is point {bad[0]} (counting from 0); fix or drop them")
     points = np.concatenate([xyz[valid].astype(np.float32), intensity[valid, None]], axis=1)
-    time = fields[time_name][valid].astype(np.float64) if time_name else None
+    time = time[valid] if time_name else None
     return LoadedCloud(points=points, time=time, dropped=int((~valid).sum()), has_intensity=intensity_name is not None)
 
 
@@ -69,6 +75,7 @@ def read_pcd_fields(path: Path) -> dict[str, np.ndarray]:
     """Columns of a PCL .pcd file (DATA ascii, binary or binary_compressed) as {name: (N,) array}."""
     raw = path.read_bytes()
     header: dict[str, list[str]] = {}
+    lines: dict[str, int] = {}  # header keyword -> its line number
     offset, line_no = 0, 0
     while "DATA" not in header:
         end = raw.find(b"\n", offset)
@@ -78,16 +85,18 @@ def read_pcd_fields(path: Path) -> dict[str, np.ndarray]:
         words = raw[offset:end].decode("ascii", errors="replace").split()
         offset = end + 1
         if words and not words[0].startswith("#"):
-            header[words[0].upper()] = words[1:]
+            header[words[0].upper()], lines[words[0].upper()] = words[1:], line_no
     try:
         names = header["FIELDS"]
         sizes = [int(s) for s in header["SIZE"]]
         types = [t.upper() for t in header["TYPE"]]
         counts = [int(c) for c in header.get("COUNT", ["1"] * len(names))]
-        n_points = int(header["POINTS"][0]) if "POINTS" in header else int(header["WIDTH"][0]) * int(header["HEIGHT"][0])
         encoding = header["DATA"][0].lower()
     except (KeyError, IndexError, ValueError) as error:
         raise DataFormatError(path, f"PCD header lacks or mangles {error}; it needs FIELDS, SIZE, TYPE, POINTS, DATA")
+    if min(counts, default=1) < 1:
+        raise DataFormatError(path, f"PCD header: COUNT {' '.join(header['COUNT'])} must be >= 1", lines["COUNT"])
+    n_points = _pcd_point_count(path, header, lines)
     if not len(names) == len(sizes) == len(types) == len(counts):
         raise DataFormatError(path, "PCD header: FIELDS, SIZE, TYPE and COUNT have different lengths")
     if any((t, s) not in _PCD_TYPES for t, s in zip(types, sizes)):
@@ -111,6 +120,28 @@ def read_pcd_fields(path: Path) -> dict[str, np.ndarray]:
     else:
         raise DataFormatError(path, f"unknown PCD DATA encoding {encoding!r}; expected ascii, binary or binary_compressed")
     return {name: records[key][:, 0] for key, (name, _, count) in zip(dtype.names, columns) if count == 1 and name != "_"}
+
+
+def _pcd_point_count(path: Path, header: dict[str, list[str]], lines: dict[str, int]) -> int:
+    """POINTS, which must equal WIDTH x HEIGHT when those are given (WIDTH x HEIGHT without POINTS); every count
+    a non-negative integer. Errors name the header line."""
+    counts = {}
+    for key in ("WIDTH", "HEIGHT", "POINTS"):
+        if key in header:
+            words = header[key]
+            if len(words) != 1 or not words[0].isdecimal():
+                raise DataFormatError(path, f"PCD header: {key} {' '.join(words)!r} must be one integer >= 0",
+                                      lines[key])
+            counts[key] = int(words[0])
+    if "WIDTH" in counts and "HEIGHT" in counts:
+        grid = counts["WIDTH"] * counts["HEIGHT"]
+        if counts.setdefault("POINTS", grid) != grid:
+            raise DataFormatError(path, f"PCD header: POINTS {counts['POINTS']} differs from WIDTH x HEIGHT = "
+                                        f"{counts['WIDTH']} x {counts['HEIGHT']} = {grid}; fix the header so they "
+                                        "agree", lines["POINTS"])
+    if "POINTS" not in counts:
+        raise DataFormatError(path, "PCD header has neither POINTS nor WIDTH and HEIGHT")
+    return counts["POINTS"]
 
 
 def _text_rows(body: bytes) -> list[str]:

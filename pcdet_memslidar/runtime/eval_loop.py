@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 import tqdm
 
+from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.runtime.distributed import get_dist_info, merge_results_dist
 from pcdet_memslidar.utils.atomic import write_bytes
@@ -31,7 +32,8 @@ def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | No
     model.eval()
     logger.info(f"*************** EPOCH {epoch_id} EVALUATION *****************")
     quiet = {"disable": True} if rank != 0 else {}  # rank 0 leaves `disable` to tqdm (TQDM_DISABLE=1 silences it)
-    for batch in tqdm.tqdm(dataloader, desc="eval", leave=False, dynamic_ncols=True, **quiet):
+    for batch in tqdm.tqdm(iterate_batches(dataloader), total=len(dataloader), desc="eval", leave=False,
+                           dynamic_ncols=True, **quiet):
         load_data_to_device(batch, device)
         start = time.perf_counter()
         with torch.no_grad():

@@ -12,6 +12,7 @@ import torch
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.grid import check_config_grid
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.runtime.common import get_device, set_torch_threads
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size
 
@@ -59,14 +60,37 @@ def setup_experiment(args: argparse.Namespace) -> Experiment:
         raise SystemExit("--launcher slurm is not supported: start the processes with torchrun and --launcher pytorch")
     cfg = load_config(args.cfg_file, args.set_cfgs)
     check_config_grid(cfg)  # a grid that does not fit SECOND is rejected before any data is read
+    batch_size = positive_count(args.batch_size, "--batch_size", cfg, "BATCH_SIZE_PER_GPU")
     dist = args.launcher == "pytorch"
     world_size, rank = init_dist_pytorch(args.tcp_port, args.local_rank) if dist else (1, 0)
     cfg.LOCAL_RANK = int(os.environ.get("LOCAL_RANK", 0)) if dist else 0
     threads = set_torch_threads(local_world_size() if dist else 1)
-    batch_size = args.batch_size or cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU
     root = Path(args.output_dir) if args.output_dir else Path(cfg.ROOT_DIR) / "output"
     output_dir = root / cfg.EXP_GROUP_PATH / cfg.TAG / args.extra_tag
     return Experiment(cfg, output_dir, dist, rank, world_size, get_device(cfg.LOCAL_RANK), threads, batch_size)
+
+
+def positive_count(option_value: int | None, option: str, cfg, key: str) -> int:
+    """`option_value` (command-line `option`) when given, else cfg.OPTIMIZATION[key]; ConfigError naming where the
+    value came from and the fix unless it is a positive integer."""
+    if option_value is not None:
+        if option_value < 1:
+            raise ConfigError(f"{option} {option_value}: must be a positive integer; pass 1 or more, or leave it out "
+                              f"to use OPTIMIZATION.{key} of the config")
+        return option_value
+    value = cfg.OPTIMIZATION.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{cfg.CFG_FILE}: OPTIMIZATION.{key} is {value!r}: it must be a positive integer; set it "
+                          f"to 1 or more (in the config, its profile or --set OPTIMIZATION.{key} N) or pass {option} N")
+    return value
+
+
+def check_learning_rate(cfg) -> None:
+    """ConfigError naming the config unless OPTIMIZATION.LR is a positive finite number."""
+    lr = cfg.OPTIMIZATION.get("LR")
+    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not math.isfinite(lr) or lr <= 0:
+        raise ConfigError(f"{cfg.CFG_FILE}: OPTIMIZATION.LR is {lr!r}: the learning rate must be a positive finite "
+                          f"number; set it in the config, its profile or with --set OPTIMIZATION.LR VALUE")
 
 
 def test_split(cfg) -> str:

@@ -4,13 +4,27 @@ from __future__ import annotations
 import torch
 
 
+BATCH_NORMS = (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d, torch.nn.BatchNorm3d, torch.nn.SyncBatchNorm)
+
+
+def onecycle_parameter_groups(model: torch.nn.Module) -> list[list[torch.nn.Parameter]]:
+    """OpenPCDet's two parameter groups of adam_onecycle: [the trainable parameters of every module but the batch
+    norms, those of the batch norms], each in model.parameters() order, so optimizer states move both ways."""
+    norm = {id(p) for module in model.modules() if isinstance(module, BATCH_NORMS)
+            for p in module.parameters(recurse=False)}
+    params = [p for p in model.parameters() if p.requires_grad]
+    return [[p for p in params if id(p) not in norm], [p for p in params if id(p) in norm]]
+
+
 def build_optimizer(model: torch.nn.Module, optim_cfg) -> torch.optim.Optimizer:
-    """adam_onecycle: AdamW (betas 0.9, 0.99; decoupled WEIGHT_DECAY) for the one-cycle schedule;
-    adam: Adam with L2 WEIGHT_DECAY; sgd: SGD with MOMENTUM."""
+    """adam_onecycle: AdamW (betas 0.9, 0.99; decoupled WEIGHT_DECAY, as OpenPCDet's wrapper applies it) over
+    OpenPCDet's two parameter groups (onecycle_parameter_groups); adam: Adam with L2 WEIGHT_DECAY; sgd: SGD with
+    MOMENTUM (one group each, as in OpenPCDet)."""
     params = [p for p in model.parameters() if p.requires_grad]
     name = optim_cfg.OPTIMIZER
     if name == "adam_onecycle":
-        return torch.optim.AdamW(params, lr=optim_cfg.LR, betas=(0.9, 0.99), weight_decay=optim_cfg.WEIGHT_DECAY)
+        groups = [{"params": group} for group in onecycle_parameter_groups(model)]
+        return torch.optim.AdamW(groups, lr=optim_cfg.LR, betas=(0.9, 0.99), weight_decay=optim_cfg.WEIGHT_DECAY)
     if name == "adam":
         return torch.optim.Adam(params, lr=optim_cfg.LR, weight_decay=optim_cfg.WEIGHT_DECAY)
     if name == "sgd":

@@ -61,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         dataset_cfg=cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES, batch_size=exp.batch_size, dist=exp.dist,
         workers=args.workers, logger=logger, training=False)
     model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=test_set).to(exp.device)
+    model.profile = cfg.get("PROFILE")  # named when a checkpoint of another grid is refused
 
     if not args.eval_all:
         checkpoint = load_params_from_file(model, args.ckpt, logger, strict=True)

@@ -18,7 +18,8 @@ from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints, load_params_from_file
 from pcdet_memslidar.runtime.common import create_logger, set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
-from pcdet_memslidar.runtime.experiment import add_common_arguments, ap_line, scalars, setup_experiment, test_split
+from pcdet_memslidar.runtime.experiment import (add_common_arguments, ap_line, check_learning_rate, positive_count,
+                                                scalars, setup_experiment, test_split)
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 
 SEED = 666  # OpenPCDet's fixed seed (plus the rank)
@@ -48,12 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     exp = setup_experiment(args)
     cfg = exp.cfg
-    epochs = args.epochs or cfg.OPTIMIZATION.NUM_EPOCHS
+    check_learning_rate(cfg)
+    epochs = positive_count(args.epochs, "--epochs", cfg, "NUM_EPOCHS")
     if args.fix_random_seed:
         set_random_seed(SEED + exp.rank)
-    ckpt_dir = exp.output_dir / "ckpt"
-    if exp.rank == 0:
-        ckpt_dir.mkdir(parents=True, exist_ok=True)
     log_file = exp.output_dir / f"log_train_{datetime.datetime.now():%Y%m%d-%H%M%S}.txt"
     logger = create_logger(log_file, rank=exp.rank)
     logger.info("**********************Start logging**********************")
@@ -62,12 +61,26 @@ def run(args: argparse.Namespace) -> int:
     for key, value in vars(args).items():
         logger.info(f"{key:24} {value}")
     log_config_to_file(cfg, logger=logger)
-    tb_log = SummaryWriter(str(exp.output_dir / "tensorboard")) if exp.rank == 0 else None
 
+    # Every split the run reads (train, val when evaluated during training, test) is loaded, and so checked (its
+    # folders, frames and infos), before the first training step: a wrong TEST_SOURCE must not cost a training.
     train_set, train_loader, train_sampler = build_dataloader(
         dataset_cfg=cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES, batch_size=exp.batch_size, dist=exp.dist,
         workers=args.workers, logger=logger, training=True, seed=SEED if args.fix_random_seed else None,
         merge_all_iters_to_one_epoch=args.merge_all_iters_to_one_epoch, total_epochs=epochs)
+    if args.val_interval > 0:
+        val_cfg = split_config(cfg, "val")
+        _, val_loader, _ = build_dataloader(dataset_cfg=val_cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES,
+                                            batch_size=exp.batch_size, dist=exp.dist, workers=args.workers,
+                                            logger=logger, training=False)
+    test_set, test_loader, _ = build_dataloader(
+        dataset_cfg=cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES, batch_size=exp.batch_size, dist=exp.dist,
+        workers=args.workers, logger=logger, training=False)
+
+    ckpt_dir = exp.output_dir / "ckpt"
+    if exp.rank == 0:
+        ckpt_dir.mkdir(parents=True, exist_ok=True)
+    tb_log = SummaryWriter(str(exp.output_dir / "tensorboard")) if exp.rank == 0 else None
     iters_per_epoch = (len(train_loader) // max(epochs, 1) if args.merge_all_iters_to_one_epoch
                        else len(train_loader))
     model, optimizer, lr_scheduler, it, start_epoch = prepare_training(
@@ -79,10 +92,6 @@ def run(args: argparse.Namespace) -> int:
 
     on_epoch_end = None
     if args.val_interval > 0:
-        val_cfg = split_config(cfg, "val")
-        _, val_loader, _ = build_dataloader(dataset_cfg=val_cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES,
-                                            batch_size=exp.batch_size, dist=exp.dist, workers=args.workers,
-                                            logger=logger, training=False)
 
         def on_epoch_end(epoch: int, mean_loss: float) -> None:
             if epoch % args.val_interval:
@@ -107,9 +116,6 @@ def run(args: argparse.Namespace) -> int:
     if exp.dist:
         torch.distributed.barrier()  # rank 0 has written the last checkpoint
 
-    test_set, test_loader, _ = build_dataloader(
-        dataset_cfg=cfg.DATA_CONFIG, class_names=cfg.CLASS_NAMES, batch_size=exp.batch_size, dist=exp.dist,
-        workers=args.workers, logger=logger, training=False)
     eval_model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=test_set).to(exp.device)
     first_epoch = max(epochs - args.num_epochs_to_eval, 0) if args.num_epochs_to_eval else epochs
     eval_tb = SummaryWriter(str(exp.output_dir / "eval" / "eval_with_train" / "tensorboard_val")) \

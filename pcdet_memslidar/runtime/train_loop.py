@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 import tqdm
 
+from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, list_checkpoints, load_params_from_file,
                                                 load_params_with_optimizer, save_checkpoint, unwrap)
@@ -22,6 +23,7 @@ def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: in
     `resume_from` (default: the newest checkpoint in ckpt_dir, if any). Returns (model, optimizer, lr_scheduler,
     iteration, start_epoch)."""
     model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=train_set)
+    model.profile = cfg.get("PROFILE")  # recorded in its checkpoints (checkpoint.trained_on)
     if sync_bn:
         model = torch.nn.SyncBatchNorm.convert_sync_batchnorm(model)
     model.to(device)
@@ -71,7 +73,7 @@ def _batches(train_loader, train_sampler, epoch: int, state: dict):
         if train_sampler is not None:
             train_sampler.set_epoch(epoch + state["passes"])
         state["passes"] += 1
-        yield from train_loader
+        yield from iterate_batches(train_loader)
 
 
 def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_epoch: int, total_epochs: int,

@@ -1,5 +1,6 @@
 """MEMSLidarDataset on generated data: create-infos, Table 2 counts (smoke), batches, replacement, errors."""
 import pickle
+import re
 from pathlib import Path
 
 import numpy as np
@@ -8,10 +9,12 @@ import torch
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets import MEMSLidarDataset, build_dataloader
-from pcdet_memslidar.datasets.infos import DBINFO_FILE, INFO_FILE
+from pcdet_memslidar.datasets.infos import DBINFO_FILE, INFO_FILE, create_domain_infos
+from pcdet_memslidar.datasets.mixing import Source
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.io import kitti
+from pcdet_memslidar.io.layout import KittiLayout, write_frame
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
@@ -153,3 +156,17 @@ def test_loader_workers_draw_new_augmentations_every_epoch(memslidar_data):
     epochs = [{batch["frame_id"][0]: batch["points"][:, 1:4].sum() for batch in loader} for _ in range(2)]
     assert epochs[0].keys() == epochs[1].keys() and len(epochs[0]) == 14
     assert all(epochs[0][frame] != epochs[1][frame] for frame in epochs[0])
+
+
+def test_a_class_name_in_another_case_is_an_error_not_background(tmp_path, make_people_frame, intensity_bands):
+    layout = KittiLayout(tmp_path / "industrial")
+    rng = np.random.default_rng(0)
+    for index, names in enumerate((["Pedestrian"], ["Pedestrian", "pedestrian"])):
+        points, boxes = make_people_frame(rng, len(names), intensity_bands["industrial"])
+        write_frame(layout, f"{index:06d}", points, names, boxes, {})
+    create_domain_infos(Source("industrial", layout.root, None))
+    cfg = _cfg("m3", tmp_path)
+    with pytest.raises(DataFormatError, match=re.escape(f"{layout.label('000001')}:2: class 'pedestrian' is not "
+                                                        f"'Pedestrian' (class names are case-sensitive), so its "
+                                                        f"objects would not count; rename it to Pedestrian")):
+        MEMSLidarDataset(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False)

@@ -74,3 +74,41 @@ def test_missing_folder_is_named(tmp_path, capsys):
         main(["eval", "--gt", str(tmp_path / "nope"), "--pred", str(tmp_path)])
     assert exit_info.value.code == 2
     assert "nope: label folder not found" in capsys.readouterr().err
+
+
+def test_pedestrian_in_another_case_is_an_error_naming_file_and_line(folders, capsys):
+    gt, pred = folders
+    write_label(gt / "000001.txt", label_from_boxes(["Pedestrian", "pedestrian"], people((25, 3), (30, 0)),
+                                                    Calibration.virtual()))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["eval", "--gt", str(gt), "--pred", str(pred)])
+    assert exit_info.value.code == 2
+    assert capsys.readouterr().err.strip() == (
+        f"memslidar eval: error: {gt / '000001.txt'}:2: class 'pedestrian' is not 'Pedestrian' (class names are "
+        f"case-sensitive), so its objects would not count; rename it to Pedestrian")
+    write(gt / "000001.txt", people((25, 3)))
+    write_label(pred / "000000.txt", label_from_boxes(["PEDESTRIAN"], people((5, 1)), Calibration.virtual(), [0.9]))
+    with pytest.raises(DataFormatError, match=r"pred/000000\.txt:1: class 'PEDESTRIAN' is not 'Pedestrian'"):
+        evaluate_folders(gt, pred)
+
+
+def test_other_classes_are_left_out_and_unknown_ones_are_reported(folders, capsys):
+    gt, pred = folders
+    names = ["Car", "Person", "Pedestrian", "DontCare", "Person"]
+    write_label(gt / "000001.txt", label_from_boxes(names, people((40, 9), (30, 0), (25, 3), (35, -9), (31, 4)),
+                                                    Calibration.virtual()))
+    assert main(["eval", "--gt", str(gt), "--pred", str(pred), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["num_gt"]["all"] == 4  # as before: only the Pedestrian objects count
+    assert captured.err.splitlines()[0] == (
+        f"warning: {gt / '000001.txt'}:2: class 'Person' is not evaluated (only Pedestrian is): 2 object(s) in 1 "
+        f"file(s) of {gt} left out; rename them to Pedestrian if they are people")
+    assert "Car" not in captured.err and "DontCare" not in captured.err
+
+
+def test_a_byte_order_mark_keeps_the_first_box(folders, capsys):
+    gt, pred = folders
+    path = gt / "000000.txt"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())  # "UTF-8 with BOM", as some editors save
+    assert main(["eval", "--gt", str(gt), "--pred", str(pred), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["num_gt"]["all"] == 4

@@ -7,6 +7,8 @@ from pcdet_memslidar.config import (apply_profile, cfg_from_list, cfg_from_yaml_
                                     load_config, merge_new_config, resolve_path)
 from pcdet_memslidar.errors import ConfigError
 
+CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+
 
 def _write(path: Path, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -34,7 +36,7 @@ OPTIMIZATION:
     NUM_EPOCHS: 120
     BATCH_SIZE_PER_GPU: 4
     DECAY_STEP_LIST: [35, 45]
-    USE_AMP: false
+    LR_WARMUP: false
 PROFILE: paper
 PROFILES:
     quick: {OPTIMIZATION: {NUM_EPOCHS: 2, DECAY_STEP_LIST: [1]}}
@@ -62,7 +64,7 @@ def test_nested_bases_load_from_another_working_directory(project):
     assert cfg.DATA_CONFIG.POINT_CLOUD_RANGE == [0, -10, -0.5, 20, 10, 3.5]
     assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "test"}
     assert cfg.OPTIMIZATION == {"LR": 1e-4, "NUM_EPOCHS": 80, "BATCH_SIZE_PER_GPU": 4,
-                                "DECAY_STEP_LIST": [35, 45], "USE_AMP": False}
+                                "DECAY_STEP_LIST": [35, 45], "LR_WARMUP": False}
     assert isinstance(cfg.OPTIMIZATION.LR, float)
     # DATA_PATH is relative to the dataset config that wrote it, not to the working directory
     assert cfg.DATA_CONFIG.DATA_PATH == str((project / "data/sim").resolve())
@@ -87,15 +89,16 @@ def test_dict_with_its_own_base_replaces_what_an_outer_base_put_there(project):
 _BASE_CONFIG_: base.yaml
 DATA_CONFIG:
     _BASE_CONFIG_: ../dataset_configs/ds.yaml
-    EXTRA: 1
+    MIX: {TOTAL: 7}
 """)
     cfg = cfg_from_yaml_file(project / "cfgs/models/rebase.yaml")
     assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "val"}
-    assert cfg.DATA_CONFIG.EXTRA == 1
+    assert cfg.DATA_CONFIG.MIX == {"TOTAL": 7}
 
 
 def test_missing_base_names_the_file_and_line_that_asked_for_it(project):
-    child = _write(project / "cfgs/models/broken.yaml", "A: 1\nDATA_CONFIG:\n    _BASE_CONFIG_: nope/ds.yaml\n")
+    child = _write(project / "cfgs/models/broken.yaml",
+                   "CLASS_NAMES: [Pedestrian]\nDATA_CONFIG:\n    _BASE_CONFIG_: nope/ds.yaml\n")
     with pytest.raises(ConfigError, match=r"broken\.yaml:3: _BASE_CONFIG_ 'nope/ds\.yaml' not found"):
         cfg_from_yaml_file(child)
 
@@ -116,13 +119,13 @@ def test_set_parses_yaml_values(project):
     cfg = cfg_from_yaml_file(project / "cfgs/models/m1.yaml")
     cfg_from_list(["OPTIMIZATION.LR", "3e-3", "OPTIMIZATION.NUM_EPOCHS", "7",
                    "OPTIMIZATION.BATCH_SIZE_PER_GPU", "2", "OPTIMIZATION.DECAY_STEP_LIST", "[5, 6, 7]",
-                   "DATA_CONFIG.POINT_CLOUD_RANGE", "0,-5,-1,10,5,3", "OPTIMIZATION.USE_AMP", "true",
+                   "DATA_CONFIG.POINT_CLOUD_RANGE", "0,-5,-1,10,5,3", "OPTIMIZATION.LR_WARMUP", "true",
                    "DATA_CONFIG.DATASET", "123", "DATA_CONFIG.DATA_SPLIT", "test:val"], cfg)
     assert cfg.OPTIMIZATION.LR == 3e-3 and isinstance(cfg.OPTIMIZATION.LR, float)
     assert cfg.OPTIMIZATION.NUM_EPOCHS == 7
     assert cfg.OPTIMIZATION.DECAY_STEP_LIST == [5, 6, 7]
     assert cfg.DATA_CONFIG.POINT_CLOUD_RANGE == [0, -5, -1, 10, 5, 3]
-    assert cfg.OPTIMIZATION.USE_AMP is True
+    assert cfg.OPTIMIZATION.LR_WARMUP is True
     assert cfg.DATA_CONFIG.DATASET == "123"  # a string key stays a string
     assert cfg.DATA_CONFIG.DATA_SPLIT == {"train": "train", "test": "val"}
     cfg_from_list(["OPTIMIZATION.LR", "1"], cfg)  # an int where a float was: widened
@@ -140,7 +143,7 @@ def test_set_errors_name_the_key_and_close_matches(project):
     with pytest.raises(ConfigError, match="expected int"):
         cfg_from_list(["OPTIMIZATION.NUM_EPOCHS", "2.5"], cfg)
     with pytest.raises(ConfigError, match="expected bool"):
-        cfg_from_list(["OPTIMIZATION.USE_AMP", "1"], cfg)
+        cfg_from_list(["OPTIMIZATION.LR_WARMUP", "1"], cfg)
 
 
 def test_profiles(project):
@@ -175,3 +178,67 @@ def test_merge_new_config_resolves_bases_relative_to_the_given_file(project):
     cfg = merge_new_config(cfg_from_yaml_file(project / "cfgs/dataset_configs/ds.yaml"),
                            {"_BASE_CONFIG_": "models/base.yaml", "NEW": [1]}, cfg_file=project / "cfgs/x.yaml")
     assert cfg.NEW == [1] and cfg.OPTIMIZATION.NUM_EPOCHS == 120 and cfg.DATASET == "MEMSLidarDataset"
+
+
+def test_unknown_keys_in_a_file_fail_at_load_with_file_line_and_close_match(project):
+    typo = _write(project / "cfgs/models/typo.yaml", "_BASE_CONFIG_: base.yaml\nOPTIMIZATION: {LRR: 0.5}\n")
+    with pytest.raises(ConfigError, match=r"typo\.yaml:2: unknown key OPTIMIZATION\.LRR; did you mean LR, LR_WARMUP\? "
+                                          r"Fix the spelling or remove the key$"):
+        load_config(typo)
+    top = _write(project / "cfgs/models/top.yaml", "_BASE_CONFIG_: base.yaml\n\nOPTIMISATION:\n    LR: 0.5\n")
+    with pytest.raises(ConfigError, match=r"top\.yaml:3: unknown key OPTIMISATION; did you mean OPTIMIZATION\?"):
+        load_config(top)
+    nested = _write(project / "cfgs/models/nested.yaml", "MODEL:\n    DENSE_HEAD:\n        NUM_DIR_BIN: 2\n")
+    with pytest.raises(ConfigError, match=r"nested\.yaml:3: unknown key MODEL\.DENSE_HEAD\.NUM_DIR_BIN; did you mean "
+                                          r"NUM_DIR_BINS\?"):
+        cfg_from_yaml_file(nested)
+    in_profile = _write(project / "cfgs/models/profile.yaml",
+                        "_BASE_CONFIG_: base.yaml\nPROFILES:\n    fast: {OPTIMIZATION: {NUM_EPOCH: 1}}\n")
+    with pytest.raises(ConfigError, match=r"profile\.yaml:3: unknown key PROFILES\.fast\.OPTIMIZATION\.NUM_EPOCH; "
+                                          r"did you mean NUM_EPOCHS, WARMUP_EPOCH\?"):
+        load_config(in_profile)  # checked even when another profile is used
+    no_match = _write(project / "cfgs/models/none.yaml", "_BASE_CONFIG_: base.yaml\nMODEL: {XYZ: 1}\n")
+    with pytest.raises(ConfigError, match=r"none\.yaml:2: unknown key MODEL\.XYZ; known keys: NAME, VFE, .*"
+                                          r"POST_PROCESSING\. Fix the spelling or remove the key$"):
+        load_config(no_match)
+
+
+def test_unknown_key_in_a_base_file_names_the_base_file(project):
+    _write(project / "cfgs/dataset_configs/ds.yaml", "DATASET: MEMSLidarDataset\nMIX:\n    TOTALS: 5\n")
+    with pytest.raises(ConfigError, match=r"ds\.yaml:3: unknown key DATA_CONFIG\.MIX\.TOTALS; did you mean TOTAL\?"):
+        load_config(project / "cfgs/models/m1.yaml")
+    with pytest.raises(ConfigError, match=r"ds\.yaml:3: unknown key DATA_CONFIG\.MIX\.TOTALS"):
+        cfg_from_yaml_file(project / "cfgs/dataset_configs/ds.yaml")  # a dataset config alone: checked as DATA_CONFIG
+
+
+def test_shipped_configs_and_openpcdet_second_keys_load(project):
+    for path in sorted(CFGS.rglob("*.yaml")):
+        for profile in load_config(path).get("PROFILES") or ["paper"]:
+            load_config(path, profile=profile)
+    # keys of OpenPCDet's own SECOND configs that our runtime does not read, and optional keys
+    openpcdet = _write(project / "cfgs/models/openpcdet.yaml", """
+DATA_CONFIG:
+    _BASE_CONFIG_: ../dataset_configs/ds.yaml
+    INFO_PATH: {train: [infos_train.pkl], test: [infos_val.pkl]}
+    FOV_POINTS_ONLY: True
+    GET_ITEM_LIST: [points]
+    TEST_SOURCE: {NAME: industrial_seed1, DOMAIN: industrial, SEED: 1, PATH: elsewhere}
+MODEL:
+    BACKBONE_2D: {USE_CONV_FOR_NO_STRIDE: False}
+    DENSE_HEAD:
+        USE_MULTIHEAD: False
+        TARGET_ASSIGNER_CONFIG: {BOX_CODER_CONFIG: {}}
+OPTIMIZATION: {LOSS_SCALE_FP16: 4.0}
+""")
+    assert load_config(openpcdet).OPTIMIZATION.LOSS_SCALE_FP16 == 4.0
+    # another OpenPCDet module has its own keys: not checked against SECOND's
+    pillars = _write(project / "cfgs/models/pillars.yaml", "MODEL:\n    VFE: {NAME: PillarVFE, WITH_DISTANCE: False}\n")
+    assert cfg_from_yaml_file(pillars).MODEL.VFE.WITH_DISTANCE is False
+
+
+def test_set_key_without_a_value_is_an_error(project):
+    path = project / "cfgs/models/m1.yaml"
+    message = (r"--set needs KEY VALUE pairs, got an odd number of items \['PROFILE', 'smoke', 'OPTIMIZATION\.LR'\]: "
+               r"'OPTIMIZATION\.LR' has no value; add one \(--set OPTIMIZATION\.LR VALUE\) or remove it")
+    with pytest.raises(ConfigError, match=message):
+        load_config(path, ["PROFILE", "smoke", "OPTIMIZATION.LR"])

@@ -1,10 +1,17 @@
 """OpenPCDet custom layout: read/write and the export of our KITTI layout."""
+import errno
+import hashlib
+import os
+import re
+
 import numpy as np
 import pytest
 
+from pcdet_memslidar.cli import main
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.io import custom, kitti
 from pcdet_memslidar.io.layout import KittiLayout, read_frame, write_frame, write_split
+from pcdet_memslidar.utils.atomic import OWNER_FILE
 
 
 def test_export_custom_round_trip(tmp_path):
@@ -16,9 +23,8 @@ def test_export_custom_round_trip(tmp_path):
         write_frame(layout, f"{i:06d}", rng.normal(size=(20 + i, 4)), ["Pedestrian"] * i, boxes, {})
     train, val = write_split(layout)
     out = tmp_path / "custom"
-    (out / "stale").mkdir(parents=True)  # replaced whole
     assert custom.export_custom(layout.root, out) == 5
-    assert sorted(path.name for path in out.iterdir()) == ["ImageSets", "labels", "points"]
+    assert sorted(path.name for path in out.iterdir()) == [OWNER_FILE, "ImageSets", "labels", "points"]
     assert kitti.read_image_set(out / "ImageSets/train.txt") == train
     assert kitti.read_image_set(out / "ImageSets/val.txt") == val
     for i in range(5):
@@ -52,10 +58,65 @@ def test_custom_errors(tmp_path):
 
 
 def test_export_custom_command(tmp_path, capsys):
-    from pcdet_memslidar.cli import main
-
     layout = KittiLayout(tmp_path / "kitti")
     write_frame(layout, "000000", np.zeros((3, 4)), ["Pedestrian"], np.array([[5, 0, 0.9, 0.6, 0.5, 1.8, 0]]), {})
     assert main(["export-custom", str(layout.root), str(tmp_path / "out")]) == 0
     assert "exported 1 frames" in capsys.readouterr().out
     assert custom.read_custom_label(tmp_path / "out/labels/000000.txt")[0].tolist() == ["Pedestrian"]
+
+
+def _tree(root):
+    """{relative path: sha256} of every file under `root`."""
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.rglob("*") if p.is_file()}
+
+
+def _export_error(capsys, *args) -> str:
+    """stderr of `memslidar export-custom ARGS`, which must exit 2 without a traceback."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["export-custom", *map(str, args)])
+    assert exit_.value.code == 2
+    error = capsys.readouterr().err
+    assert error.startswith("memslidar export-custom: error: ") and "Traceback" not in error
+    return error
+
+
+def test_export_custom_never_replaces_an_input_or_what_it_did_not_write(tmp_path, capsys):
+    layout = KittiLayout(tmp_path / "data" / "kitti")
+    write_frame(layout, "000000", np.ones((3, 4)), ["Pedestrian"], np.array([[5, 0, 0.9, 0.6, 0.5, 1.8, 0]]), {})
+    source = _tree(layout.root)
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    (tmp_path / "file").write_text("mine")
+    for out, message in ((layout.root, rf"OUT_ROOT {layout.root} is the input {layout.root}; choose OUT_ROOT outside"),
+                         (tmp_path / "data", "OUT_ROOT .*data contains the input .*kitti"),
+                         (user, f"{user} holds files that memslidar export-custom did not write .*choose a new folder"),
+                         (tmp_path / "file", f"{tmp_path / 'file'} is a file")):
+        assert re.search(message, _export_error(capsys, layout.root, out))
+    assert _tree(layout.root) == source and list(user.iterdir()) == [user / "notes.txt"]
+    assert (user / "notes.txt").read_text() == (tmp_path / "file").read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "file", "user"]  # no temporary left behind
+
+    out = tmp_path / "custom"
+    assert custom.export_custom(layout.root, out) == 1
+    write_frame(layout, "000001", np.ones((4, 4)), [], np.zeros((0, 7)), {})
+    assert custom.export_custom(layout.root, out) == 2  # a rerun replaces its own earlier export
+    assert sorted(p.name for p in (out / "points").iterdir()) == ["000000.npy", "000001.npy"]
+
+
+def test_export_custom_into_a_read_only_folder_is_a_clear_error(tmp_path, capsys, monkeypatch):
+    layout = KittiLayout(tmp_path / "kitti")
+    write_frame(layout, "000000", np.ones((3, 4)), [], np.zeros((0, 7)), {})
+    read_only = tmp_path / "read_only"
+    read_only.mkdir()
+    real_mkdir = os.mkdir
+
+    def mkdir(path, mode=0o777):  # root ignores permissions: refuse as a read-only folder would
+        if str(path).startswith(str(read_only)):
+            raise PermissionError(errno.EACCES, "Permission denied", str(path))
+        real_mkdir(path, mode)
+
+    monkeypatch.setattr(os, "mkdir", mkdir)
+    error = _export_error(capsys, layout.root, read_only / "custom")
+    assert f"{read_only / 'custom'}: Permission denied; choose a folder you may write to" in error
+    assert not list(read_only.iterdir())

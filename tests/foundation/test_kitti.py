@@ -64,6 +64,15 @@ def test_malformed_label_line_names_file_and_line(tmp_path, line, message):
     assert error.value.line == 3 and error.value.path == path
 
 
+def test_a_byte_order_mark_does_not_rename_the_first_object(tmp_path):
+    path = tmp_path / "bom.txt"
+    path.write_bytes(f"{LINE}\n{LINE}\n".encode("utf-8-sig"))  # as Windows Notepad saves "UTF-8 with BOM"
+    assert kitti.read_label(path).name.tolist() == ["Pedestrian", "Pedestrian"]
+    ids = tmp_path / "train.txt"
+    ids.write_bytes("000001\n000002\n".encode("utf-8-sig"))
+    assert kitti.read_image_set(ids) == ["000001", "000002"]
+
+
 def test_score_column_on_some_lines_only(tmp_path):
     path = _write(tmp_path / "p.txt", f"{LINE} 0.9\n{LINE}\n")
     with pytest.raises(DataFormatError, match=r"p\.txt:2: score column present on some lines only"):

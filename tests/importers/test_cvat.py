@@ -24,15 +24,16 @@ def write_pcd(path, points):
     path.write_bytes(header.encode() + np.asarray(points, "<f4").tobytes())
 
 
-def write_sly(root, frames):
-    """frames: {name: (points (N, 4), [(class, position xyz, rotation xyz, dimensions xyz), ...] or None)}."""
+def write_sly(root, frames, dataset="ds0"):
+    """frames: {name: (points (N, 4), [(class, position xyz, rotation xyz, dimensions xyz), ...] or None)}, in the
+    dataset folder `dataset`."""
     classes = sorted({c[0] for _, cuboids in frames.values() for c in cuboids or []})
-    (root / "ds0").mkdir(parents=True, exist_ok=True)
+    (root / dataset).mkdir(parents=True, exist_ok=True)
     (root / "meta.json").write_text(json.dumps({"classes": [{"title": c, "shape": "cuboid_3d"} for c in classes],
                                                 "tags": [], "projectType": "point_clouds"}))
     (root / "key_id_map.json").write_text(json.dumps({"tags": {}, "objects": {}, "figures": {}, "videos": {}}))
     for name, (points, cuboids) in frames.items():
-        write_pcd(root / "ds0" / "pointcloud" / f"{name}.pcd", points)
+        write_pcd(root / dataset / "pointcloud" / f"{name}.pcd", points)
         if cuboids is None:
             continue
         axes = lambda v: dict(zip("xyz", map(float, v)))  # noqa: E731
@@ -41,8 +42,8 @@ def write_sly(root, frames):
                "figures": [{"key": f"f{i}", "objectKey": f"o{i}", "geometryType": "cuboid_3d",
                             "geometry": {"position": axes(c[1]), "rotation": axes(c[2]), "dimensions": axes(c[3])}}
                            for i, c in enumerate(cuboids)]}
-        (root / "ds0" / "ann").mkdir(exist_ok=True)
-        (root / "ds0" / "ann" / f"{name}.pcd.json").write_text(json.dumps(ann))
+        (root / dataset / "ann").mkdir(exist_ok=True)
+        (root / dataset / "ann" / f"{name}.pcd.json").write_text(json.dumps(ann))
 
 
 def write_kitti_raw(root, names, tracklets):
@@ -82,7 +83,7 @@ MOUNT = Mount(4.0, 30.0)
 def test_sly_rotated_box_in_a_tilted_frame(tmp_path):
     write_sly(tmp_path, {"frame_2": (np.ones((3, 4)), [ROTATED_CUBOID]), "frame_10": (np.ones((3, 4)), None)})
     frames = cvat.read_sly_export(tmp_path)
-    assert [f.name for f in frames] == ["frame_2", "frame_10"] and frames[1].labels == []
+    assert [f.name for f in frames] == ["ds0/frame_2", "ds0/frame_10"] and frames[1].labels == []
     boxes, levelling = normalise_boxes(frames[0].centers, frames[0].rotations, frames[0].sizes, MOUNT)
     np.testing.assert_allclose(boxes, [ROTATED_EXPECTED], atol=1e-6)
     np.testing.assert_allclose(levelling, [0.0], atol=1e-6)
@@ -151,3 +152,52 @@ def test_import_of_a_zipped_sly_export_writes_ground_frame_labels(tmp_path):
     assert frame["metadata"]["num_points_in_gt"] == [20, 1]
     np.testing.assert_allclose(frame["points"][:20, :3], inside, atol=1e-5)
     assert json.loads((tmp_path / "real" / "import_report.json").read_text())["boxes"] == 2
+
+
+def test_sly_frames_of_two_datasets_with_one_name_stay_apart(tmp_path):
+    box = ((1, 0, 0), (0, 0, 0), (0.5, 0.5, 1.7))
+    write_sly(tmp_path, {"f1": (np.ones((3, 4)), [("person", *box)])}, dataset="ds0")
+    write_sly(tmp_path, {"f1": (np.full((4, 4), 2.0), [("person", *box), ("person", *box)])}, dataset="ds1")
+    frames = cvat.read_sly_export(tmp_path)
+    assert [(f.name, f.cloud_path.parent.parent.name, len(f.labels)) for f in frames] == [("ds0/f1", "ds0", 1),
+                                                                                          ("ds1/f1", "ds1", 2)]
+
+
+def test_sly_annotation_that_is_a_json_list(tmp_path):
+    write_sly(tmp_path, {"f": (np.ones((3, 4)), [])})
+    (tmp_path / "ds0" / "ann" / "f.pcd.json").write_text("[]")
+    with pytest.raises(DataFormatError, match=r"f\.pcd\.json: not a Sly point-cloud annotation \(TypeError: the file "
+                                              r"holds a JSON list, not an object with 'objects' and 'figures'\)"):
+        cvat.read_sly_export(tmp_path)
+
+
+def test_zip_with_a_bad_crc_names_the_archive(tmp_path):
+    write_sly(tmp_path / "export", {"f": (np.ones((3, 4)), [])})
+    with zipfile.ZipFile(tmp_path / "export.zip", "w", zipfile.ZIP_STORED) as archive:
+        for path in sorted((tmp_path / "export").rglob("*")):
+            archive.write(path, path.relative_to(tmp_path / "export"))
+    data = bytearray((tmp_path / "export.zip").read_bytes())
+    start = data.index(b"DATA binary\n") + len(b"DATA binary\n")
+    data[start] ^= 0xFF  # one byte of the stored point cloud
+    (tmp_path / "export.zip").write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"export\.zip: corrupt zip archive \(Bad CRC-32 for file"):
+        import_dataset("cvat-sly", tmp_path / "export.zip", tmp_path / "real")
+    assert not (tmp_path / "real").exists()
+
+
+@pytest.mark.parametrize("listing, message", [
+    ("0 a\n1 b\n2 a\n", r"frame_list\.txt:3: name 'a' is listed again \(first on line 1\)"),
+    ("0 a\n0 b\n", r"frame_list\.txt:2: frame index 0 is listed again \(first on line 1\)")])
+def test_kitti_raw_frame_list_with_a_repeated_name_or_index(tmp_path, listing, message):
+    write_kitti_raw(tmp_path, ["a", "b"], [])
+    (tmp_path / "frame_list.txt").write_text(listing)
+    with pytest.raises(DataFormatError, match=message):
+        cvat.read_kitti_raw_export(tmp_path)
+
+
+@pytest.mark.parametrize("first", ["1.7", "-1", "x"])
+def test_kitti_raw_first_frame_must_be_a_frame_index(tmp_path, first):
+    write_kitti_raw(tmp_path, ["a", "b", "c"], [("person", 0.4, 0.6, 1.8, first, [(4.0, -1.0, 0.9, 0.0)])])
+    with pytest.raises(DataFormatError, match=rf"tracklet_labels\.xml: tracklet 0: <first_frame> '{first}' must be a "
+                                              r"frame index \(an integer >= 0\)"):
+        cvat.read_kitti_raw_export(tmp_path)

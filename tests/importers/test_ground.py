@@ -38,3 +38,9 @@ def test_no_ground_and_bad_mount_text():
     assert parse_mount("4,16") == Mount(4.0, 16.0)
     with pytest.raises(ValueError, match="HEIGHT,TILT"):
         parse_mount("4")
+
+
+@pytest.mark.parametrize("text", ["nan,16", "4,inf", "4,16,nan"])
+def test_non_finite_mount_text(text):
+    with pytest.raises(ValueError, match=rf"--mount '{text}': expected HEIGHT,TILT\[,ROLL\] as finite numbers"):
+        parse_mount(text)

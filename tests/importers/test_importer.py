@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar import cli
+from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.importer import import_dataset
@@ -80,3 +81,15 @@ def test_failed_reimport_keeps_the_previous_dataset(tmp_path):
     assert KittiLayout(out).frame_ids() == ["000000", "000001", "000002"]
     np.testing.assert_allclose(read_frame(KittiLayout(out), "000002")["points"], [[5.0, 0.0, 0.0, 20.0]])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds", "real"]
+
+
+def test_gzip_crc_failure_is_reported_as_corrupt_not_as_not_gzip(tmp_path):
+    data = bytearray(gzip.compress(b"\x00" * 100))
+    data[-8] ^= 0xFF  # the CRC-32 in the gzip trailer
+    (tmp_path / "crc.bfpc").write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"crc\.bfpc: corrupt or truncated gzip data \(CRC check failed"):
+        read_bfpc(tmp_path / "crc.bfpc")
+    (tmp_path / "plain.bfpc").write_bytes(b"\x00" * 100)
+    with pytest.raises(DataFormatError, match=r"plain\.bfpc: not a gzip stream \(it does not start with the gzip "
+                                              r"bytes 1f 8b\)"):
+        read_bfpc(tmp_path / "plain.bfpc")

@@ -97,3 +97,24 @@ def test_npy_and_bin(tmp_path):
     with pytest.raises(DataFormatError, match="shape"):
         np.save(tmp_path / "b.npy", np.zeros((3, 7)))
         read_point_cloud(tmp_path / "b.npy")
+
+
+@pytest.mark.parametrize("counts, message", [
+    ("WIDTH 3\nHEIGHT 1\nPOINTS 2", r"p\.pcd:4: PCD header: POINTS 2 differs from WIDTH x HEIGHT = 3 x 1 = 3"),
+    ("WIDTH -3\nHEIGHT 1\nPOINTS 3", r"p\.pcd:2: PCD header: WIDTH '-3' must be one integer >= 0"),
+    ("POINTS -1", r"p\.pcd:2: PCD header: POINTS '-1' must be one integer >= 0"),
+    ("POINTS 3\nCOUNT 1 1 -1", r"p\.pcd:3: PCD header: COUNT 1 1 -1 must be >= 1")])
+def test_pcd_point_counts_must_agree_and_be_non_negative(tmp_path, counts, message):
+    (tmp_path / "p.pcd").write_text(f"FIELDS x y z\n{counts}\nSIZE 4 4 4\nTYPE F F F\nDATA ascii\n1 2 3\n4 5 6\n7 8 9\n")
+    with pytest.raises(DataFormatError, match=message):
+        read_point_cloud(tmp_path / "p.pcd")
+
+
+def test_nan_intensity_or_time_of_a_valid_point_names_the_file(tmp_path):
+    np.save(tmp_path / "i.npy", np.array([[1, 2, 3, 4], [1, 2, 3, np.nan], [np.nan, 0, 0, np.nan]]))
+    with pytest.raises(DataFormatError, match=r"i\.npy: 1 point\(s\) with valid x, y, z have a NaN or infinite "
+                                              r"'intensity', the first is point 1"):
+        read_point_cloud(tmp_path / "i.npy")
+    np.save(tmp_path / "t.npy", np.array([[1, 2, 3, 4, 0.1], [1, 2, 3, 4, np.inf]]))
+    with pytest.raises(DataFormatError, match=r"t\.npy: 1 point\(s\) .* infinite 'time', the first is point 1"):
+        read_point_cloud(tmp_path / "t.npy")

@@ -69,3 +69,13 @@ def test_out_that_holds_the_data_and_bad_counts_are_refused_before_anything_is_w
         with pytest.raises(ConfigError, match=message):
             reproduce("smoke", seeds, tmp_path / "out", data, workers=workers, jobs=jobs)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("OPTIMIZATION.LR", ".nan", r"OPTIMIZATION.LR is nan: the learning rate must be a positive finite number"),
+    ("OPTIMIZATION.BATCH_SIZE_PER_GPU", "0", r"OPTIMIZATION.BATCH_SIZE_PER_GPU is 0: it must be a positive integer"),
+    ("OPTIMIZATION.NUM_EPOCHS", "-2", r"OPTIMIZATION.NUM_EPOCHS is -2: it must be a positive integer"),
+])
+def test_reproduce_checks_its_configs_as_train_does(tmp_path, key, value, message):
+    with pytest.raises(ConfigError, match=message):
+        model_config("M3", "smoke", tmp_path, [key, value])

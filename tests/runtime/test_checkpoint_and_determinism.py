@@ -64,7 +64,8 @@ def test_checkpoint_round_trip_with_weights_only(dataset, tmp_path):
     model, optimizer = _train(dataset, tmp_path, epochs=1)
     path = save_checkpoint(checkpoint_state(model, optimizer, epoch=1, it=2), tmp_path / "round_trip")
     raw = torch.load(path, weights_only=True)
-    assert set(raw) == {"epoch", "it", "model_state", "optimizer_state", "version"}
+    assert list(raw) == ["epoch", "it", "model_state", "optimizer_state", "version", "memslidar"]
+    assert raw["memslidar"]["point_cloud_range"] == SMALL_RANGE and raw["memslidar"]["voxel_size"] == PERSON_VOXEL
     assert type(raw["epoch"]) is int and type(raw["it"]) is int and isinstance(raw["version"], str)
     assert all(not isinstance(v, torch.Tensor) or v.device.type == "cpu" for v in raw["model_state"].values())
     fresh = build_network(small_model_cfg(), num_class=1, dataset=dataset)
@@ -80,7 +81,10 @@ def test_a_mismatching_checkpoint_is_refused_with_the_file_name(dataset, tmp_pat
     path = save_checkpoint(checkpoint_state(build_network(small_model_cfg(), 1, dataset)), tmp_path / "small.pth")
     wide = small_model_cfg()
     wide.BACKBONE_2D.NUM_FILTERS = [64, 64]
-    with pytest.raises(DataFormatError, match="small.pth"):
+    expected = (r"small.pth: does not fit the model of this config: 12 weights of another shape, checkpoint vs model "
+                r"\(backbone_2d.blocks.0.1.weight \(32, 256, 3, 3\) vs \(64, 256, 3, 3\), .*Use the config \(MODEL "
+                r"section and PROFILE\)")
+    with pytest.raises(DataFormatError, match=expected):
         load_params_from_file(build_network(wide, 1, dataset), path, strict=True)
     with pytest.raises(DataFormatError, match="not found"):
         load_params_from_file(build_network(wide, 1, dataset), tmp_path / "missing.pth")

@@ -12,6 +12,8 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg  # noqa: E402
 
 from pcdet_memslidar import cli  # noqa: E402
+from pcdet_memslidar.models import build_network  # noqa: E402
+from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint  # noqa: E402
 from pcdet_memslidar.runtime import test as test_tool  # noqa: E402
 from pcdet_memslidar.runtime import train as train_tool  # noqa: E402
 from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
@@ -88,6 +90,20 @@ def test_train_then_test_then_resume(experiment, capsys):
     log = sorted(run_dir.glob("log_train_*.txt"))[-1].read_text()
     assert "resuming from" in log and "checkpoint_epoch_2.pth" in log
     assert (run_dir / "ckpt" / "checkpoint_epoch_3.pth").is_file()
+
+
+def test_test_refuses_a_checkpoint_trained_on_another_grid(experiment, capsys):
+    cfg_file, output = experiment
+    other_grid = SyntheticPersonDataset([2.56, -5.12, -0.5, 12.8, 5.12, 3.5], PERSON_VOXEL, num_frames=1)
+    model = build_network(small_model_cfg(), 1, other_grid)
+    model.profile = "quick"
+    ckpt = save_checkpoint(checkpoint_state(model, epoch=1), output / "quick_grid.pth")
+    with pytest.raises(SystemExit) as exited:
+        cli.main(["test", "--cfg", str(cfg_file), "--output_dir", str(output), "--workers", "0", "--ckpt", str(ckpt)])
+    assert exited.value.code == 2
+    assert (f"memslidar test: error: {ckpt}: was trained on profile 'quick', POINT_CLOUD_RANGE [2.56, -5.12, -0.5, "
+            f"12.8, 5.12, 3.5], VOXEL_SIZE [0.08, 0.08, 0.1], but this config has profile 'paper', POINT_CLOUD_RANGE "
+            f"[0.0, -5.12, -0.5, 10.24, 5.12, 3.5]") in capsys.readouterr().err
 
 
 def test_cfg_alias_and_openpcdet_flags_parse():

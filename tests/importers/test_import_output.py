@@ -1,0 +1,95 @@
+"""`memslidar import` never replaces its input or what it did not write; file-system errors and bad arguments are
+one clear line; leftovers of a killed import are removed by the next one."""
+import subprocess
+
+import numpy as np
+import pytest
+
+from pcdet_memslidar import cli
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io.importer import import_dataset
+from pcdet_memslidar.io.layout import KittiLayout
+
+
+@pytest.fixture
+def clouds(tmp_path):
+    """A folder of two .npy clouds."""
+    folder = tmp_path / "clouds"
+    folder.mkdir()
+    for i in range(2):
+        np.save(folder / f"{i}.npy", np.array([[5.0, 0.0, 1.0, 10.0 * i]]))
+    return folder
+
+
+def _import(capsys, src, out, *extra) -> tuple[int, str]:
+    """Exit code and stderr of `memslidar import --format npy --src SRC --out OUT EXTRA`."""
+    try:
+        code = cli.main(["import", "--format", "npy", "--src", str(src), "--out", str(out), *extra])
+    except SystemExit as exit_:
+        code = exit_.code
+    return code, capsys.readouterr().err
+
+
+def test_out_that_is_or_holds_the_source_is_refused_and_the_source_kept(clouds, capsys):
+    before = {p.name: p.read_bytes() for p in clouds.iterdir()}
+    for src, message in ((clouds / "0.npy", f"--out {clouds} contains the input {clouds / '0.npy'}"),
+                         (clouds, f"--out {clouds} is the input {clouds}")):
+        code, error = _import(capsys, src, clouds, "--overwrite")
+        assert code == 2 and f"{message}; choose --out outside every input" in error
+    assert {p.name: p.read_bytes() for p in clouds.iterdir()} == before
+
+
+def test_a_folder_or_file_it_did_not_write_is_refused_and_its_own_output_replaced(tmp_path, clouds, capsys):
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    (tmp_path / "file").write_text("mine")
+    for out, message in ((user, f"{user} holds files that memslidar import did not write"),
+                         (tmp_path / "file", f"{tmp_path / 'file'} is a file")):
+        code, error = _import(capsys, clouds, out, "--overwrite")
+        assert code == 2 and message in error and "choose a new folder, or move or delete it yourself" in error
+    assert list(user.iterdir()) == [user / "notes.txt"] and (user / "notes.txt").read_text() == "mine"
+    assert (tmp_path / "file").read_text() == "mine"
+
+    out = tmp_path / "real"
+    assert _import(capsys, clouds, out)[0] == 0
+    np.save(clouds / "2.npy", np.array([[6.0, 0.0, 1.0, 1.0]]))
+    code, error = _import(capsys, clouds, out)
+    assert code == 2 and f"--out {out} holds an earlier import; pass --overwrite" in error
+    assert _import(capsys, clouds, out, "--overwrite")[0] == 0
+    assert KittiLayout(out).frame_ids() == ["000000", "000001", "000002"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds", "file", "real", "user"]
+
+
+def test_a_full_disk_is_one_line_naming_the_output(tmp_path, clouds, capsys, full_disk):
+    out = tmp_path / "real"
+    code, error = _import(capsys, clouds, out)
+    assert code == 2 and "Traceback" not in error
+    assert error.splitlines()[-1].startswith(f"memslidar import: error: {out}/training/")  # not the hidden temporary
+    assert "No space left on device; free space on that disk" in error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds"]
+
+
+def test_the_temporary_folder_of_a_killed_import_is_removed_by_the_next(tmp_path, clouds):
+    child = subprocess.Popen(["true"])
+    child.wait()  # its pid now names no process, as after kill -9
+    leftover = tmp_path / f".real.{child.pid}.0.tmp"
+    (leftover / "training" / "velodyne").mkdir(parents=True)
+    import_dataset("npy", clouds, tmp_path / "real", mount=Mount(2.0, 0.0))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds", "real"]
+
+
+def test_nan_intensity_names_the_source_file(tmp_path, clouds):
+    np.save(clouds / "1.npy", np.array([[5.0, 0.0, 1.0, 1.0], [6.0, 0.0, 1.0, np.nan]]))
+    with pytest.raises(DataFormatError, match=rf"^{clouds / '1.npy'}: 1 point\(s\) with valid x, y, z have a NaN or "
+                                              r"infinite 'intensity', the first is point 1 \(counting from 0\)"):
+        import_dataset("npy", clouds, tmp_path / "real")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds"]
+
+
+@pytest.mark.parametrize("mount", ["nan,16", "4,inf"])
+def test_a_non_finite_mount_is_an_argument_error(tmp_path, clouds, capsys, mount):
+    code, error = _import(capsys, clouds, tmp_path / "real", "--mount", mount)
+    assert code == 2 and f"argument --mount: --mount '{mount}': expected HEIGHT,TILT[,ROLL] as finite numbers" in error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds"]
