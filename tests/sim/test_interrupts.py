@@ -56,8 +56,10 @@ def test_workers_end_when_simulate_is_killed(tmp_path):
 
 
 def test_ctrl_c_prints_one_line_naming_the_way_to_resume(tmp_path):
+    # a shell that starts this run in the background makes it ignore SIGINT, and children inherit that: restore it
     process = subprocess.Popen(SIMULATE + ["--workers", "1", "--out", str(tmp_path / "real")],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert _wait_for(lambda: any((tmp_path / "real" / "training" / "velodyne").glob("*.bin")), 60)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=60)
