@@ -1,7 +1,7 @@
 """The `memslidar` command: one subcommand per pipeline stage.
 
-Each subcommand lives in the module of its stage, which defines `add_arguments(parser)` and `run(args) -> int`;
-only the module of the command being run is imported, so `memslidar --help` stays fast.
+Each subcommand is a module of pcdet_memslidar.commands, which defines `add_arguments(parser)` and
+`run(args) -> int`; only the module of the command being run is imported, so `memslidar --help` stays fast.
 """
 from __future__ import annotations
 
@@ -12,16 +12,16 @@ import sys
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 
-# name -> (module, one-line help), in pipeline order
+# name -> (module of pcdet_memslidar.commands, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("pcdet_memslidar.sim.cli", "simulate a domain (sim | real | industrial) as a KITTI-layout dataset"),
-    "import": ("pcdet_memslidar.io.importer", "real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> dataset"),
-    "export-custom": ("pcdet_memslidar.io.custom", "a KITTI-layout dataset -> OpenPCDet's custom layout (points/*.npy)"),
-    "create-infos": ("pcdet_memslidar.datasets.infos", "info files and gt database of every source a config reads"),
-    "train": ("pcdet_memslidar.runtime.train", "train a SECOND detector (OpenPCDet's tools/train.py flags), then evaluate"),
-    "test": ("pcdet_memslidar.runtime.test", "evaluate checkpoints on the test split (OpenPCDet's tools/test.py flags)"),
-    "eval": ("pcdet_memslidar.evaluation.cli", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
-    "reproduce": ("pcdet_memslidar.reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
+    "simulate": ("simulate", "simulate a domain (sim | real | industrial) as a KITTI-layout dataset"),
+    "import": ("import_recordings", "real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> dataset"),
+    "export-custom": ("export_custom", "a KITTI-layout dataset -> OpenPCDet's custom layout (points/*.npy)"),
+    "create-infos": ("create_infos", "info files and gt database of every source a config reads"),
+    "train": ("train", "train a SECOND detector (OpenPCDet's tools/train.py flags), then evaluate"),
+    "test": ("test", "evaluate checkpoints on the test split (OpenPCDet's tools/test.py flags)"),
+    "eval": ("eval", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
+    "reproduce": ("reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
 }
 
 
@@ -39,6 +39,11 @@ OS_ERROR_FIXES = {
 }
 
 
+def command_module(name: str):
+    """The module of pcdet_memslidar.commands that implements command `name`."""
+    return importlib.import_module(f"pcdet_memslidar.commands.{COMMANDS[name][0]}")
+
+
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The top-level parser; only `command`'s own arguments are added (its module is imported)."""
     parser = argparse.ArgumentParser(prog="memslidar", description="MEMS-LiDAR person detection, OpenPCDet-compatible.")
@@ -46,7 +51,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     for name, (module, summary) in COMMANDS.items():
         sub = commands.add_parser(name, help=summary, description=summary)
         if name == command:
-            importlib.import_module(module).add_arguments(sub)
+            command_module(name).add_arguments(sub)
     return parser
 
 
@@ -56,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser(command if command in COMMANDS else None)
     args = parser.parse_args(argv)
     try:
-        return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
+        return int(command_module(args.command).run(args) or 0)
     except (DataFormatError, ConfigError, OutputError) as error:
         parser.exit(2, f"memslidar {args.command}: error: {error}\n")
     except OSError as error:  # the file system refused: full disk, read-only folder, a file where a folder must be

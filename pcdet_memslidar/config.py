@@ -21,7 +21,7 @@ Public API:
     cfg_from_list(cfg_list, config) -> None
     merge_new_config(config, new_config, cfg_file=None) -> EasyDict
     apply_profile(config, profile=None) -> EasyDict
-    load_config(cfg_file, set_cfgs=None, profile=None) -> EasyDict   (yaml + profile + --set, names set)
+    load_config(cfg_file, set_cfgs=None, profile=None) -> EasyDict   (yaml + profile + --set, names set, grid checked)
     resolve_path(base_file, value) -> Path
     experiment_group(cfg_file) -> str
     log_config_to_file(config, pre='cfg', logger=None) -> None
@@ -39,6 +39,7 @@ import yaml
 from easydict import EasyDict
 
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.grid import check_config_grid
 
 BASE_KEY = "_BASE_CONFIG_"
 PATH_KEYS = ("DATA_PATH",)  # string values resolved relative to the file that wrote them
@@ -358,7 +359,10 @@ def experiment_group(cfg_file: str | Path) -> str:
 
 def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile: str | None = None) -> EasyDict:
     """The full config: YAML (with bases), then the profile (`profile`, a --set PROFILE, or the file's PROFILE),
-    then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH."""
+    then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH.
+
+    ConfigError (naming the file) for a POINT_CLOUD_RANGE that is no 6 numbers, and for a SECOND model whose voxel
+    grid it cannot take (pcdet_memslidar.grid.check_config_grid, with sizes that fit)."""
     pairs = _set_pairs(set_cfgs)
     config = cfg_from_yaml_file(cfg_file)
     apply_profile(config, profile or dict(pairs).get("PROFILE"))
@@ -368,6 +372,7 @@ def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile
     config.CFG_FILE = str(Path(cfg_file).resolve())
     config.TAG = Path(cfg_file).stem
     config.EXP_GROUP_PATH = experiment_group(cfg_file)
+    check_config_grid(config)
     return config
 
 

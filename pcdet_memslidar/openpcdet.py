@@ -6,14 +6,19 @@
 OpenPCDet has no plugin hook, so this launcher registers first and then runs the script as __main__ (runpy):
 - MEMSLidarDataset goes into pcdet.datasets.__all__, the registry its build_dataloader reads;
 - pcdet.config.cfg_from_yaml_file loads with our semantics (`_BASE_CONFIG_` and DATA_PATH relative to the file
-  that names them, at any depth), applies the config's profile and checks the voxel grid;
-- pcdet.config.cfg_from_list applies `--set PROFILE quick` (after the other --set values, which then win again).
+  that names them, at any depth), applies the config's profile, sets CFG_FILE (as our load_config) and checks the
+  voxel grid (pcdet_memslidar.grid.check_config_grid, the check of our config loader and model);
+- pcdet.config.cfg_from_list applies `--set PROFILE quick` (after the other --set values, which then win again) and
+  checks the grid again.
 """
 from __future__ import annotations
 
 import runpy
 import sys
 from pathlib import Path
+
+from .config import apply_profile, cfg_from_yaml_file
+from .grid import check_config_grid
 
 USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
 
@@ -38,27 +43,23 @@ def register() -> None:
 
 def _cfg_from_yaml_file(cfg_file, config):
     """OpenPCDet's cfg_from_yaml_file(cfg_file, config) with our path rules, the config's profile and grid check."""
-    from .config import apply_profile, cfg_from_yaml_file
-    from .datasets.grid import check_config_grid
-
     cfg_from_yaml_file(cfg_file, merge_to=config)
     if "PROFILES" in config:
         apply_profile(config)
+    config.CFG_FILE = str(Path(cfg_file).resolve())
     check_config_grid(config)
     return config
 
 
 def _profile_aware_cfg_from_list(original):
     """Wrap OpenPCDet's cfg_from_list: set, apply the (possibly new) PROFILE, set again so --set values win."""
-    from .config import apply_profile
-    from .datasets.grid import check_config_grid
 
     def cfg_from_list(cfg_list, config):
         original(cfg_list, config)
         if "PROFILES" in config:
             apply_profile(config)
             original(cfg_list, config)
-        check_config_grid(config)
+        check_config_grid(config, f"{config.get('CFG_FILE', 'the config')} with --set {' '.join(map(str, cfg_list))}")
 
     cfg_from_list.memslidar = True
     return cfg_from_list

@@ -18,6 +18,7 @@ import torch
 from pcdet_memslidar.evaluation import evaluate, format_results
 from pcdet_memslidar.evaluation.matching import same_frame_pairs
 from pcdet_memslidar.geometry.iou import circles_overlap
+from pcdet_memslidar.io.kitti import CLASS_NAME
 
 
 def people(rng: np.random.Generator, centres: np.ndarray) -> np.ndarray:
@@ -39,8 +40,8 @@ def random_frames(frames: int, num_gt: int, num_dt: int, seed: int = 0) -> tuple
         clutter = people(rng, np.column_stack([rng.uniform(2, 40, num_dt - len(near)),
                                                rng.uniform(-20, 20, num_dt - len(near))]))
         dt = np.concatenate([near, clutter])
-        gt_annos.append({"name": np.full(num_gt, "Pedestrian"), "boxes_lidar": gt})
-        dt_annos.append({"name": np.full(num_dt, "Pedestrian"), "boxes_lidar": dt, "score": rng.uniform(size=num_dt)})
+        gt_annos.append({"name": np.full(num_gt, CLASS_NAME), "boxes_lidar": gt})
+        dt_annos.append({"name": np.full(num_dt, CLASS_NAME), "boxes_lidar": dt, "score": rng.uniform(size=num_dt)})
     return gt_annos, dt_annos
 
 

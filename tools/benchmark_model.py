@@ -25,12 +25,12 @@ import torch
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.mixing import split_sources
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.reproduce import default_jobs, run_jobs
 from pcdet_memslidar.runtime.common import get_device, set_random_seed
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.runtime.train_loop import train_one_step
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores

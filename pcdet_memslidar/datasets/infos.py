@@ -1,4 +1,4 @@
-"""Info files and the ground-truth database of each domain, and the `memslidar create-infos` command.
+"""Info files and the ground-truth database of each domain (what `memslidar create-infos` writes).
 
 Per domain folder (KITTI layout, see data/README.md):
     memslidar_infos.pkl     {'fingerprint': str, 'infos': [per-frame info, sorted by frame id]}; an info is
@@ -11,22 +11,19 @@ The fingerprint (frame ids, point-file sizes, label contents) tells whether the 
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import pickle
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
-from ..config import load_config
 from ..errors import DataFormatError
 from ..geometry.boxes import points_in_boxes_mask
 from ..io.layout import KittiLayout, read_frame
 from ..utils.atomic import atomic_dir, write_bytes
-from .grid import check_config_grid
-from .mixing import Source, make_frames_command, select_frames, split_frames, split_sources
+from ..utils.progress import progress_bar
+from .mixing import Source, make_frames_command
 
 INFO_FILE = "memslidar_infos.pkl"
 DBINFO_FILE = "memslidar_dbinfos.pkl"
@@ -92,7 +89,7 @@ def create_domain_infos(source: Source, force: bool = False) -> list[dict]:
     info_path.unlink(missing_ok=True)
     infos, db_infos = [], defaultdict(list)
     with atomic_dir(source.root / DATABASE_DIR, "memslidar create-infos") as database:
-        for frame_id in tqdm(layout.frame_ids(), desc=f"infos + gt database of {source.name}", leave=False):
+        for frame_id in progress_bar(layout.frame_ids(), desc=f"infos + gt database of {source.name}", leave=False):
             frame = read_frame(layout, frame_id)
             points, boxes, names = frame["points"], frame["gt_boxes"], np.asarray(frame["gt_names"])
             inside = points_in_boxes_mask(points, boxes)
@@ -136,36 +133,3 @@ def load_db_infos(source: Source) -> dict:
     if not path.is_file():
         raise DataFormatError(path, f"gt database of source '{source.name}' is missing: run {CREATE_COMMAND}")
     return _read_pickle(path, source, "gt database")
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cfg", "--cfg_file", dest="cfg_file", required=True,
-                        help="experiment config (cfgs/m3.yaml) or dataset config")
-    parser.add_argument("--profile", default=None, help="paper | quick | smoke (same as --set PROFILE ...)")
-    parser.add_argument("--force", action="store_true", help="rebuild infos even when they match the frames")
-    parser.add_argument("--set", dest="set_cfgs", default=None, nargs=argparse.REMAINDER,
-                        help="config overrides KEY VALUE ...")
-
-
-def run(args: argparse.Namespace) -> int:
-    """Create the infos of every source the config's splits read, then report each split's frame counts."""
-    cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
-    check_config_grid(cfg)
-    data_cfg = cfg.DATA_CONFIG if "DATA_CONFIG" in cfg else cfg
-    data_path = Path(data_cfg.DATA_PATH)
-    print(f"profile {cfg.get('PROFILE', 'paper')}, data {data_path}")
-    sources = {split: split_sources(data_cfg, split, data_path) for split in ("train", "val", "test")}
-    infos = {}
-    for source in (source for split_list in sources.values() for source in split_list):
-        if source.root not in infos:
-            infos[source.root] = create_domain_infos(source, force=args.force)
-    for split, split_list in sources.items():
-        for source in split_list:
-            frame_ids = [info["frame_id"] for info in infos[source.root]]
-            chosen = set(split_frames(select_frames(source, frame_ids, source.root / INFO_FILE), split,
-                                      float(data_cfg.MIX.get("VAL_FRACTION", 0.3)),
-                                      int(data_cfg.MIX.get("SPLIT_SEED", 0))))
-            boxes = sum(len(info["annos"]["name"]) for info in infos[source.root] if info["frame_id"] in chosen)
-            print(f"{split:>5}  {source.name:<12} {len(chosen):6d} of {len(frame_ids):6d} frames, {boxes:7d} boxes  "
-                  f"({source.root})")
-    return 0

@@ -18,7 +18,7 @@ from ..io.layout import KittiLayout
 from .augmentor import DataAugmentor, GtDatabase
 from .dataset import DatasetTemplate
 from .infos import load_db_infos, load_domain_infos
-from .mixing import make_frames_command, select_frames, split_frames, split_settings, split_sources
+from .mixing import make_frames_command, source_split, split_sources
 
 MAX_REPLACEMENTS = 100  # training frames left without boxes are replaced by random others, at most this often
 
@@ -41,14 +41,13 @@ class MEMSLidarDataset(*_template_bases()):
         DatasetTemplate.__init__(self, dataset_cfg=dataset_cfg, class_names=class_names, training=training,
                                  root_path=root_path, logger=logger)
         self.split = dataset_cfg.DATA_SPLIT[self.mode]
-        val_fraction, split_seed = split_settings(dataset_cfg.MIX)
         self.sources = split_sources(dataset_cfg, self.split, self.root_path)
         self.infos, databases = [], {}
         for source in self.sources:
             self._check_folder(source)
             domain_infos = load_domain_infos(source)
-            chosen = select_frames(source, [info["frame_id"] for info in domain_infos], source.root)
-            frame_ids = set(split_frames(chosen, self.split, val_fraction, split_seed))
+            frame_ids = set(source_split(source, [info["frame_id"] for info in domain_infos], self.split, dataset_cfg,
+                                         source.root))
             infos = [{**info, "source": source.name, "root": source.root}
                      for info in domain_infos if info["frame_id"] in frame_ids]
             for info in infos:  # a 'pedestrian' box would silently be background

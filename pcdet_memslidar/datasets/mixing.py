@@ -6,7 +6,8 @@ Config (DATA_CONFIG.MIX):
 A source gives RATIO (of TOTAL) or COUNT (frames); a simulated source may name the simulator's DOMAIN preset
 (default: its NAME) and the simulation SEED (default 0) that `memslidar reproduce` makes its frames with. Each
 source takes its first `count` frames in sorted id order (so adding frames never changes which ones are taken),
-split 70/30 by io.layout.stable_split.
+split 70/30 by io.layout.stable_split. DATA_CONFIG.TEST_SOURCE {NAME, PATH?, DOMAIN?, SEED?, COUNT} is read whole;
+its COUNT is how many frames `memslidar reproduce` simulates of it (null: the domain preset's number).
 """
 from __future__ import annotations
 
@@ -45,6 +46,15 @@ def check_seed(seed, key: str) -> int:
         raise ConfigError(f"{key} is {seed!r}: a seed must be a non-negative integer (0, 1, ...); fix it in the config "
                           f"(or --set)")
     return seed
+
+
+def check_count(count, key: str) -> int | None:
+    """`count` if it is None or a positive integer, else ConfigError naming the config `key`, the value and the
+    fix."""
+    if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 1):
+        raise ConfigError(f"{key} is {count!r}: give a positive number of frames, or null; fix it in the config, its "
+                          f"profile (or --set)")
+    return count
 
 
 def split_settings(mix_cfg) -> tuple[float, int]:
@@ -136,6 +146,14 @@ def split_frames(frame_ids: list[str], split: str, val_fraction: float, seed: in
         return sorted(frame_ids)
     train, val = stable_split(frame_ids, val_fraction=val_fraction, seed=seed)
     return train if split == "train" else val
+
+
+def source_split(source: Source, frame_ids: list[str], split: str, data_cfg, where: Path) -> list[str]:
+    """The frames of `source` (its ids `frame_ids`) that `split` reads: the source's first `count` frames
+    (select_frames; DataFormatError naming `where` if too few), then the split's part of them (split_frames with
+    the MIX's split_settings)."""
+    val_fraction, seed = split_settings(data_cfg.MIX)
+    return split_frames(select_frames(source, frame_ids, where), split, val_fraction, seed)
 
 
 class MixedBatchSampler(torch.utils.data.Sampler):

@@ -243,8 +243,8 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
         previous_ap = -1.0
         for entry in sorted(members, key=lambda entry: (entry["ms_per_frame"], entry["ap"])):
             above = entry["ap"] >= previous_ap  # the label goes away from its left neighbour
-            ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7, xytext=(4, 4 if above else -10),
-                        textcoords="offset points")
+            ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7,
+                        xytext=(4, 4 if above else -10), textcoords="offset points")
             previous_ap = entry["ap"]
     ax.set(xlabel="inference time [ms/frame]", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
            title="AP on the industrial split against inference time")

@@ -18,6 +18,7 @@ import warnings
 import numpy as np
 
 from pcdet_memslidar.geometry.boxes import check_boxes
+from pcdet_memslidar.io.kitti import CLASS_NAME
 
 from .average_precision import interpolated_ap, precision_recall_curve
 from .matching import greedy_match, pair_ious
@@ -55,7 +56,7 @@ def _stack_class(annos: list[dict], class_name: str, with_score: bool, kind: str
 
 
 def evaluate(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: float = 0.5,
-             iou_threshold_bev: float = 0.5, class_name: str = "Pedestrian",
+             iou_threshold_bev: float = 0.5, class_name: str = CLASS_NAME,
              distance_bins=DISTANCE_BINS) -> dict:
     """AP of `class_name` for frame-aligned ground truth and detections.
 

@@ -1,6 +1,7 @@
-"""The reproduction report: results.json (machine-readable) and report.md (Tables 2 and 3 beside the paper's).
+"""The reproduction report: its parts (run scores, model entries, environment, figures), results.json
+(machine-readable) and report.md (Tables 2 and 3 beside the paper's).
 
-`results` is one JSON-ready dict (written by pcdet_memslidar.reproduce):
+`results` is one JSON-ready dict (assembled by pcdet_memslidar.reproduce from the parts here):
     profile, overrides [KEY, VALUE, ...] (--set), seeds [int], command, date (ISO), wall_seconds,
     environment {package, python, libraries {name: version}, machine {cpu, cores, torch_threads, gpu}},
     stages {name: seconds} (in run order),
@@ -14,13 +15,26 @@ percentage points, as the paper's Table 3 ("+17 %" for 0.10 -> 0.27).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import platform
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+import torch
 
+from pcdet_memslidar import __version__
+from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.cores import available_cores
+
+from .figures import (SCORE_THRESHOLD, choose_example_frames, plot_ap_vs_time, plot_example_frames, plot_pr_curves,
+                      plot_training_curves)
+from .folders import CLASS_NAME, evaluate_folders, read_label_folder
+from .metrics import ap_summary
 
 # The paper's Table 2 (synthetic, real frames of each training set, before the 70/30 split) and Table 3 (AP, IoU 0.5)
 PAPER_COUNTS = {"M1": {"sim": 0, "real": 2100}, "M2": {"sim": 2100, "real": 0},
@@ -30,6 +44,7 @@ PAPER_ORDER = ("M3", "M4", "M2", "M1")  # Table 3, best first
 HEADLINE = "AP3D_R40"  # compared with the paper's AP: 3D IoU 0.5, OpenPCDet's default 40 recall positions
 TABLE3_COLUMNS = ("AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11")
 REFERENCE_MODEL = "M1"
+LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
 
 
 def summarise_runs(runs: list[dict]) -> tuple[dict, dict]:
@@ -58,6 +73,89 @@ def gain_over_reference(models: dict, metric: str = HEADLINE) -> dict[str, float
         value = model["mean"].get(metric)
         gains[name] = None if value is None or reference is None else 100.0 * (value - reference)
     return gains
+
+
+def score_run(gt_dir: Path, pred_dir: Path) -> dict:
+    """A run's scores as JSON-ready run fields: evaluate_folders of its saved prediction labels against the
+    ground-truth labels -> {metrics (ap_summary), num_gt, num_dt, pr_curves {3D, BEV} (all distances)}."""
+    result, _ = evaluate_folders(gt_dir, pred_dir)
+    return {"metrics": ap_summary(result), "num_gt": result["num_gt"], "num_dt": result["num_dt"],
+            "pr_curves": {kind: result["pr_curves"][kind]["all"] for kind in ("3D", "BEV")}}
+
+
+def model_entry(cfg_file: str, counts: dict, runs: list[dict]) -> dict:
+    """results['models'][model]: its config, Table 2 counts, mean and std over the seeds' runs, and the runs
+    (without their PR curves, which only the figure draws)."""
+    mean, std = summarise_runs(runs)
+    return {"cfg": cfg_file, "counts": counts, "mean": mean, "std": std,
+            "runs": [{key: value for key, value in run.items() if key != "pr_curves"} for run in runs]}
+
+
+def environment() -> dict:
+    """results['environment']: package and library versions, CPU, cores, torch threads and GPU of this process."""
+    libraries = {}
+    for name in LIBRARIES:
+        with contextlib.suppress(metadata.PackageNotFoundError):
+            libraries[name] = metadata.version(name if name != "spconv" else _spconv_distribution())
+    cpu = platform.processor() or platform.machine()
+    with contextlib.suppress(OSError):
+        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                 if line.startswith("model name")]
+        cpu = names[0] if names else cpu
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    return {"package": __version__, "python": platform.python_version(), "libraries": libraries,
+            "machine": {"cpu": cpu, "cores": available_cores(), "torch_threads": torch.get_num_threads(), "gpu": gpu,
+                        "platform": platform.platform(), "load_average_1min": os.getloadavg()[0]}}
+
+
+def _spconv_distribution() -> str:
+    """The installed spconv wheel's distribution name (spconv, spconv-cu121, ...)."""
+    names = [dist.metadata["Name"] for dist in metadata.distributions() if dist.metadata["Name"].startswith("spconv")]
+    return names[0] if names else "spconv"
+
+
+def benchmark_entries(results: dict, benchmark_file: Path | None = None) -> list[dict]:
+    """Points of the AP-vs-time figure: the models of this run, and the configurations in `benchmark_file`
+    (tools/benchmark_model.py's JSON results) when it is given and exists."""
+    shared = f" ({results['jobs']} models sharing the cores)" if results.get("jobs", 1) > 1 else ""
+    entries = [{"name": name, "ms_per_frame": model["mean"]["ms_per_frame"], "ap": model["mean"][HEADLINE],
+                "group": f"this run{shared}"} for name, model in results["models"].items()]
+    if benchmark_file is not None and benchmark_file.is_file():
+        benchmark = json.loads(benchmark_file.read_text())
+        for row in benchmark.get("rows", []):
+            if row.get("infer_ms") is not None and row.get(HEADLINE) is not None:
+                entries.append({"name": row["config"], "ms_per_frame": row["infer_ms"], "ap": row[HEADLINE],
+                                "group": f"tools/benchmark_model.py ({benchmark.get('device')}, "
+                                         f"{benchmark.get('threads')} threads)"})
+    return entries
+
+
+def add_figures(results: dict, runs: dict, gt_dir: Path, velodyne_dir: Path, out: Path,
+                benchmark_file: Path | None = None) -> None:
+    """Draw the report's figures into `out` from the runs {model: run with predictions, pr_curves, curve} (the
+    first seed's) and fill results['figures'] and results['example_frames']."""
+    gt = read_label_folder(gt_dir, with_score=False)
+    frame_ids = sorted(gt)
+    predictions = {}
+    for name, run in runs.items():
+        saved = read_label_folder(out / run["predictions"], with_score=True)
+        empty = {"name": np.zeros(0, dtype=str), "boxes_lidar": np.zeros((0, 7)), "score": np.zeros(0)}
+        predictions[name] = [saved.get(frame_id, empty) for frame_id in frame_ids]
+    gt_boxes = [gt[frame_id]["boxes_lidar"][gt[frame_id]["name"] == CLASS_NAME] for frame_id in frame_ids]
+    examples = choose_example_frames(gt_boxes, predictions)
+    frames = [{"points": read_points(velodyne_dir / f"{frame_ids[e.index]}.bin"), "gt_boxes": gt_boxes[e.index],
+               "title": f"{e.role} ({frame_ids[e.index]})"} for e in examples]
+    plot_example_frames(out / "fig3_examples.png", frames,
+                        {name: [annos[e.index] for e in examples] for name, annos in predictions.items()})
+    plot_pr_curves(out / "pr_curves.png", {name: run["pr_curves"] for name, run in runs.items()},
+                   {name: {"3D": run["metrics"]["AP3D_R40"], "BEV": run["metrics"]["APBEV_R40"]}
+                    for name, run in runs.items()})
+    plot_ap_vs_time(out / "ap_vs_time.png", benchmark_entries(results, benchmark_file))
+    plot_training_curves(out / "training_curves.png", {name: run["curve"] for name, run in runs.items()})
+    results["figures"] = {"examples": "fig3_examples.png", "pr_curves": "pr_curves.png",
+                          "ap_vs_time": "ap_vs_time.png", "training_curves": "training_curves.png"}
+    results["example_frames"] = [{"role": e.role, "frame_id": frame_ids[e.index], "why": e.why,
+                                  "score_threshold": SCORE_THRESHOLD} for e in examples]
 
 
 def _ap(mean: float | None, std: float | None, seeds: int) -> str:
@@ -223,8 +321,8 @@ def _figure_lines(results: dict) -> list[str]:
                   f"![training curves]({figures['training_curves']})", ""]
     if "ap_vs_time" in figures:
         lines += ["### AP against inference time", "",
-                  "AP 3D (R40) on the industrial split against CPU inference time per frame: the models of this run and "
-                  "the configurations of tools/benchmark_model.py where its results file exists.", "",
+                  "AP 3D (R40) on the industrial split against CPU inference time per frame: the models of this run "
+                  "and the configurations of tools/benchmark_model.py where its results file exists.", "",
                   f"![AP against inference time]({figures['ap_vs_time']})", ""]
     return lines
 

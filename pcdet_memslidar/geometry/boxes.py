@@ -38,7 +38,7 @@ def limit_period(val, offset: float = 0.5, period: float = 2 * np.pi):
 
 
 def normalize_heading(heading):
-    """Heading [rad] wrapped into [-pi, pi)."""
+    """Heading (or any angle) [rad] wrapped into [-pi, pi): the package's one wrap (labels, KITTI alpha, boxes)."""
     return limit_period(heading, offset=0.5, period=2 * np.pi)
 
 

@@ -8,22 +8,20 @@ Public API:
     read_custom_points(path) -> (N, 4) float32            write_custom_points(path, points)
     read_custom_label(path) -> (names (M,) str, boxes (M, 7) float32)
     write_custom_label(path, names, boxes)
-    export_custom(kitti_root, out_root) -> int (frames written)
-    `memslidar export-custom KITTI_ROOT OUT_ROOT`: add_arguments(parser), run(args) -> int
+    export_custom(kitti_root, out_root) -> int (frames written)   (`memslidar export-custom`)
 """
 from __future__ import annotations
 
-import argparse
 import io
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout, read_frame, stable_split
 from pcdet_memslidar.utils.atomic import atomic_dir, refuse_overlap, write_bytes, write_text
+from pcdet_memslidar.utils.progress import progress_bar
 
 COMMAND = "memslidar export-custom"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
 
@@ -112,22 +110,10 @@ def export_custom(kitti_root: str | Path, out_root: str | Path) -> int:
     else:
         splits = dict(zip(("train", "val"), stable_split(frame_ids)))
     with atomic_dir(out_root, COMMAND) as tmp:
-        for frame_id in tqdm(frame_ids, desc=f"export {Path(out_root).name}", unit="frame"):
+        for frame_id in progress_bar(frame_ids, desc=f"export {Path(out_root).name}", unit="frame"):
             frame = read_frame(layout, frame_id)
             write_custom_points(tmp / "points" / f"{frame_id}.npy", frame["points"])
             write_custom_label(tmp / "labels" / f"{frame_id}.txt", frame["gt_names"], frame["gt_boxes"])
         for name, ids in splits.items():
             kitti.write_image_set(tmp / "ImageSets" / f"{name}.txt", ids)
     return len(frame_ids)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("kitti_root", type=Path, help="a KITTI-layout dataset, e.g. data/memslidar/sim")
-    parser.add_argument("out_root", type=Path, help="folder to write in OpenPCDet's custom layout: new, empty or "
-                                                    "an earlier export (replaced whole)")
-
-
-def run(args: argparse.Namespace) -> int:
-    count = export_custom(args.kitti_root, args.out_root)
-    print(f"exported {count} frames from {args.kitti_root} to {args.out_root} (points/, labels/, ImageSets/)")
-    return 0

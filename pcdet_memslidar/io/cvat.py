@@ -29,8 +29,8 @@ from xml.etree import ElementTree
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.io.kitti import CLASS_NAME
 
-CLASS_NAME = "Pedestrian"
 PERSON_NAMES = ("person", "pedestrian")  # accepted in any letter case
 OUTSIDE_TRUNCATION = (2, 99)  # KITTI raw poses marked out of / behind the image: not a labelled frame
 

@@ -1,4 +1,5 @@
-"""`memslidar import`: real recordings (and their CVAT labels) -> a KITTI-layout dataset in the ground frame.
+"""Import of real recordings (and their CVAT labels) into a KITTI-layout dataset in the ground frame
+(`memslidar import`).
 
     list the source frames (lazily: each is read when it is written)
     -> choose the mount: given (--mount), estimated from the ground plane (--estimate-ground) or none (the clouds
@@ -10,30 +11,28 @@
 """
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from tqdm import tqdm
 
 from pcdet_memslidar import __version__
+from pcdet_memslidar.config import SCHEMA_FILE, cfg_from_yaml_file
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import cvat, ground
 from pcdet_memslidar.io.bfpc import read_bfpc
+from pcdet_memslidar.io.kitti import MIN_BOX_POINTS
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
 from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
+from pcdet_memslidar.utils.progress import progress_bar
 
 FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
-POINT_CLOUD_RANGE = (2.56, -23.04, -0.5, 40.96, 23.04, 2.5)  # POINT_CLOUD_RANGE of cfgs/dataset_configs [m]
-MIN_BOX_POINTS = 5
 GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
 REPORT_NAME = "import_report.json"
 COMMAND = "memslidar import"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
@@ -81,13 +80,15 @@ def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention
         return [SourceFrame(path.name, lambda path=path: read_point_cloud(path)) for path in _files(src, "." + fmt)]
     exported = (cvat.read_sly_export(export_root) if fmt == "cvat-sly"
                 else cvat.read_kitti_raw_export(export_root, convention))
-    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path), frame) for frame in exported]
+    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path), frame)
+            for frame in exported]
 
 
 def choose_mount(frames: list[SourceFrame], mount: Mount | None, estimate: bool) -> tuple[Mount | None, dict]:
     """The mount to normalise with and its report entry; estimated from the first GROUND_FRAMES frames."""
     if mount is not None:
-        return mount, {"source": "given", "height": mount.height, "tilt_deg": mount.tilt_deg, "roll_deg": mount.roll_deg}
+        return mount, {"source": "given", "height": mount.height, "tilt_deg": mount.tilt_deg,
+                       "roll_deg": mount.roll_deg}
     if not estimate:
         return None, {"source": "none (clouds stored as they are: already in the ground frame)"}
     points = np.concatenate([frame.load().points for frame in frames[:GROUND_FRAMES]])
@@ -103,21 +104,28 @@ def _frame_report(points: np.ndarray, boxes: np.ndarray, point_cloud_range: np.n
             "boxes_under_min_points": int((counts < MIN_BOX_POINTS).sum())}, counts
 
 
+def detector_range() -> list[float]:
+    """POINT_CLOUD_RANGE [x0, y0, z0, x1, y1, z1] [m] of the shipped detector's dataset config (its paper
+    profile): the range an import counts the points outside of."""
+    return list(cfg_from_yaml_file(SCHEMA_FILE).DATA_CONFIG.POINT_CLOUD_RANGE)
+
+
 def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mount_entry: dict, fmt: str,
-                  src: Path, skip_unknown: bool = False, point_cloud_range=POINT_CLOUD_RANGE,
-                  val_fraction: float = 0.3, seed: int = 0) -> dict:
+                  src: Path, skip_unknown: bool = False, point_cloud_range=None) -> dict:
     """Normalise and write `frames` into a fresh dataset at `out` (replaced whole on success: see
-    utils.atomic.atomic_dir); return the report."""
+    utils.atomic.atomic_dir) with io.layout's train/val split; return the report. point_cloud_range: the range of
+    the out-of-range count (default: detector_range())."""
     labelled = [frame.cuboids for frame in frames if frame.cuboids is not None]
     masks, unknown = cvat.person_mask(labelled, skip_unknown, src)
     person = iter(masks)
-    point_cloud_range = np.asarray(point_cloud_range, dtype=np.float64)
+    point_cloud_range = np.asarray(detector_range() if point_cloud_range is None else point_cloud_range,
+                                   dtype=np.float64)
     report = {"format": fmt, "source": str(src), "out": str(out), "package_version": __version__,
               "mount": mount_entry, "point_cloud_range": point_cloud_range.tolist(), "min_box_points": MIN_BOX_POINTS,
               "skipped_unknown_labels": dict(sorted(unknown.items())), "per_frame": []}
     with atomic_dir(out, COMMAND) as tmp:
         layout = KittiLayout(tmp)
-        for index, frame in enumerate(tqdm(frames, desc="import", unit="frame")):
+        for index, frame in enumerate(progress_bar(frames, desc="import", unit="frame")):
             frame_id = f"{index:06d}"
             cloud = frame.load()
             points = cloud.points if mount is None else ground.normalise_points(cloud.points, mount)
@@ -138,7 +146,7 @@ def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mou
                 metadata["point_time"] = np.round(cloud.time, 7)
             write_frame(layout, frame_id, points, [cvat.CLASS_NAME] * len(boxes), boxes, metadata)
             report["per_frame"].append(entry)
-        train, val = write_split(layout, val_fraction, seed)
+        train, val = write_split(layout)
         report.update(_totals(report["per_frame"]), train_frames=len(train), val_frames=len(val))
         write_text(tmp / REPORT_NAME, json.dumps(report, indent=1) + "\n")
     return report
@@ -149,14 +157,16 @@ def _totals(per_frame: list[dict]) -> dict:
     for entry in per_frame:
         total.update({key: entry[key] for key in ("points", "points_out_of_range", "boxes", "boxes_under_min_points",
                                                    "dropped_invalid_points")})
-    return {"frames": len(per_frame), "frames_without_labels": sum(not e["labelled"] or not e["boxes"] for e in per_frame),
+    return {"frames": len(per_frame),
+            "frames_without_labels": sum(not e["labelled"] or not e["boxes"] for e in per_frame),
             **dict(total), "max_box_levelling_deg": max((e["max_box_levelling_deg"] for e in per_frame), default=0.0)}
 
 
 def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
                    estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
-                   point_cloud_range=POINT_CLOUD_RANGE, val_fraction: float = 0.3, overwrite: bool = True) -> dict:
+                   point_cloud_range=None, overwrite: bool = True) -> dict:
     """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report.
+    point_cloud_range: the range of the report's out-of-range count (default: detector_range()).
     `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not be or contain `src`:
     OutputError otherwise."""
     if fmt not in FORMATS:
@@ -173,67 +183,7 @@ def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | No
         with cvat.open_export(src) as root:
             frames = list_frames(fmt, src, root, convention)
             mount, entry = choose_mount(frames, mount, estimate_ground)
-            return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range, val_fraction)
+            return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)
     frames = list_frames(fmt, src)
     mount, entry = choose_mount(frames, mount, estimate_ground)
-    return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range, val_fraction)
-
-
-def format_report(report: dict) -> str:
-    """Human-readable summary of an import report."""
-    mount = report["mount"]
-    lines = [f"imported {report['frames']} frames ({report['format']}) from {report['source']} into {report['out']}",
-             f"  mount: {mount['source']}" + (f": height {mount['height']:.3f} m, tilt {mount['tilt_deg']:.2f} deg, "
-                                             f"roll {mount['roll_deg']:.2f} deg" if "height" in mount else "")]
-    if "inliers" in mount:
-        lines.append(f"  ground plane: {mount['inliers']} inliers, RMS {100 * mount['rms_m']:.2f} cm")
-    lines += [f"  frames without labels:            {report['frames_without_labels']}",
-              f"  boxes:                            {report['boxes']}",
-              f"  boxes with < {report['min_box_points']} points:            {report['boxes_under_min_points']}",
-              f"  points:                           {report['points']}",
-              f"  points out of range {report['point_cloud_range']}: {report['points_out_of_range']}",
-              f"  dropped NaN / zero / no-return:   {report['dropped_invalid_points']}",
-              f"  max box levelling [deg]:          {report['max_box_levelling_deg']:.2f}",
-              f"  split: {report['train_frames']} train / {report['val_frames']} val"]
-    if report["skipped_unknown_labels"]:
-        lines.append(f"  skipped unknown labels: {report['skipped_unknown_labels']}")
-    return "\n".join(lines)
-
-
-def _mount_argument(text: str) -> Mount:
-    try:
-        return ground.parse_mount(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--format", required=True, choices=FORMATS, help="source format")
-    parser.add_argument("--src", required=True, type=Path,
-                        help="a file, a folder of files, or a CVAT export (folder or .zip)")
-    parser.add_argument("--out", type=Path, default=Path("data/memslidar/real"),
-                        help="dataset folder to create (default: %(default)s)")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--mount", type=_mount_argument, metavar="H,TILT[,ROLL]",
-                       help="sensor height [m] and tilt [deg] (> 0 looks down) to remove")
-    where.add_argument("--estimate-ground", action="store_true", help="estimate the mount from the ground plane")
-    parser.add_argument("--skip-unknown-labels", action="store_true",
-                        help="drop (and count) cuboids whose label is not person / pedestrian instead of failing")
-    parser.add_argument("--kitti-raw-convention", choices=("cvat", "kitti"), default="cvat",
-                        help="cvat: sizes and centre as CVAT/Datumaro write them; kitti: the KITTI raw devkit's")
-    parser.add_argument("--point-cloud-range", type=float, nargs=6, default=list(POINT_CLOUD_RANGE),
-                        metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"), help="range for the out-of-range count [m]")
-    parser.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier import")
-
-
-def run(args: argparse.Namespace) -> int:
-    try:
-        report = import_dataset(args.format, args.src, args.out, args.mount, args.estimate_ground,
-                                args.skip_unknown_labels, args.kitti_raw_convention, args.point_cloud_range,
-                                overwrite=args.overwrite)
-    except (DataFormatError, ConfigError, ValueError) as error:  # OutputError is a ValueError too
-        print(f"error: {error}\n(nothing was written to {args.out})", file=sys.stderr)
-        return 2 if isinstance(error, OutputError) else 1
-    print(format_report(report))
-    print(f"report: {args.out / REPORT_NAME}")
-    return 0
+    return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)

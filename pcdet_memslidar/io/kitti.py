@@ -23,19 +23,17 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.geometry.boxes import boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d
+from pcdet_memslidar.geometry.boxes import (boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d,
+                                            normalize_heading)
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
 
 POINT_BYTES = 16  # float32 x, y, z, intensity
 IMAGE_SIZE = (1242, 375)  # (width, height) [px] of the virtual camera's image, as KITTI's
 DONT_CARE = "DontCare"  # KITTI's ignore regions: sizes -1 are allowed on these lines only
-KITTI_CLASSES = ("Car", "Van", "Truck", "Pedestrian", "Person_sitting", "Cyclist", "Tram", "Misc", DONT_CARE)
-
-
-def _wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Angles [rad] wrapped into [-pi, pi)."""
-    return (np.asarray(angle, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
+CLASS_NAME = "Pedestrian"  # our one class, under KITTI's name (longer names break OpenPCDet's KITTI mapping)
+KITTI_CLASSES = ("Car", "Van", "Truck", CLASS_NAME, "Person_sitting", "Cyclist", "Tram", "Misc", DONT_CARE)
+MIN_BOX_POINTS = 5  # a person with fewer points is not labelled (simulated or imported; kept in the metadata)
 
 
 def _read_text(path: Path) -> str:
@@ -234,7 +232,7 @@ def label_from_boxes(names, boxes: np.ndarray, calib: Calibration, scores: np.nd
         raise ValueError(f"names ({len(names)}), boxes ({len(boxes)}) and scores must have the same length")
     camera = boxes_lidar_to_camera(boxes, calib)
     location, dimensions, rotation_y = camera[:, :3], camera[:, 3:6], camera[:, 6]
-    alpha = _wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
+    alpha = normalize_heading(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
     return KittiLabel(name=names, truncated=np.zeros(len(boxes)), occluded=np.zeros(len(boxes), dtype=np.int64),
                       alpha=alpha, bbox=_image_bbox(boxes, calib), dimensions=dimensions,
                       location=location, rotation_y=rotation_y,

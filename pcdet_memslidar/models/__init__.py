@@ -19,7 +19,7 @@ _HOST_KEYS = {"frame_id", "metadata", "calib", "image_shape", "gt_names", "db_fl
 
 def build_network(model_cfg, num_class: int, dataset) -> torch.nn.Module:
     """The detector named by model_cfg.NAME; `dataset` provides point_feature_encoder.num_point_features,
-    grid_size (3,) [x, y, z cells], point_cloud_range (6,), voxel_size (3,) and class_names."""
+    point_cloud_range (6,), voxel_size (3,) [m] (its grid is checked against model_cfg) and class_names."""
     if model_cfg.get("NAME") not in DETECTORS:
         raise ConfigError(f"MODEL.NAME is {model_cfg.get('NAME')!r}; this package provides {', '.join(DETECTORS)}")
     return DETECTORS[model_cfg.NAME](model_cfg=model_cfg, num_class=num_class, dataset=dataset)

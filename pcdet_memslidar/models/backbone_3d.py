@@ -7,6 +7,7 @@ import numpy as np
 import spconv.pytorch as spconv
 from torch import nn
 
+from pcdet_memslidar.grid import SPARSE_OUTPUT_CHANNELS, SPARSE_STRIDE, sparse_output_shape
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
 
 patch_spconv()
@@ -24,20 +25,6 @@ def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: s
     else:
         raise ValueError(f"unknown sparse conv type '{conv_type}': use 'subm' or 'spconv'")
     return spconv.SparseSequential(conv, _batch_norm(out_channels), nn.ReLU())
-
-
-def output_spatial_shape(sparse_shape) -> list[int]:
-    """(z, y, x) cells of VoxelBackBone8x's output for an input of `sparse_shape` (z, y, x) cells."""
-    z, y, x = sparse_shape
-    for _ in range(2):  # conv2, conv3: kernel 3, stride 2, padding 1
-        z, y, x = ((n + 2 - 3) // 2 + 1 for n in (z, y, x))
-    z, y, x = (z - 3) // 2 + 1, (y + 2 - 3) // 2 + 1, (x + 2 - 3) // 2 + 1  # conv4: no z padding
-    return [(z - 3) // 2 + 1, y, x]  # conv_out: kernel (3, 1, 1), stride (2, 1, 1)
-
-
-def sparse_output_depth(depth_cells: int) -> int:
-    """Depth (z cells) of VoxelBackBone8x's output for a grid `depth_cells` voxels deep (40 -> 2)."""
-    return output_spatial_shape([depth_cells + 1, 1, 1])[0]
 
 
 class VoxelBackBone8x(nn.Module):
@@ -67,10 +54,10 @@ class VoxelBackBone8x(nn.Module):
             sparse_block(64, 64, 3, padding=1, indice_key="subm4"),
             sparse_block(64, 64, 3, padding=1, indice_key="subm4"))
         self.conv_out = spconv.SparseSequential(
-            spconv.SparseConv3d(64, 128, (3, 1, 1), stride=(2, 1, 1), padding=model_cfg.get("last_pad", 0),
-                                bias=False, indice_key="spconv_down2"),
-            _batch_norm(128), nn.ReLU())
-        self.num_point_features = 128
+            spconv.SparseConv3d(64, SPARSE_OUTPUT_CHANNELS, (3, 1, 1), stride=(2, 1, 1),
+                                padding=model_cfg.get("last_pad", 0), bias=False, indice_key="spconv_down2"),
+            _batch_norm(SPARSE_OUTPUT_CHANNELS), nn.ReLU())
+        self.num_point_features = SPARSE_OUTPUT_CHANNELS
         self.backbone_channels = {"x_conv1": 16, "x_conv2": 32, "x_conv3": 64, "x_conv4": 64}
 
     def forward(self, batch_dict: dict) -> dict:
@@ -79,12 +66,12 @@ class VoxelBackBone8x(nn.Module):
         A batch without any voxel (spconv cannot take one) gives an empty output tensor, i.e. an all-zero map.
         """
         features = batch_dict["voxel_features"]
-        batch_dict.update({"encoded_spconv_tensor_stride": 8,
+        batch_dict.update({"encoded_spconv_tensor_stride": SPARSE_STRIDE,
                            "multi_scale_3d_strides": {"x_conv1": 1, "x_conv2": 2, "x_conv3": 4, "x_conv4": 8}})
         if features.shape[0] == 0:
             batch_dict["encoded_spconv_tensor"] = spconv.SparseConvTensor(
                 features.new_zeros(0, self.num_point_features), batch_dict["voxel_coords"].new_zeros(0, 4).int(),
-                output_spatial_shape(self.sparse_shape), batch_dict["batch_size"])
+                sparse_output_shape(self.sparse_shape), batch_dict["batch_size"])
             return batch_dict
         with single_thread():
             x = spconv.SparseConvTensor(features=features,

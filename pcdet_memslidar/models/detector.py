@@ -1,14 +1,14 @@
 """SECONDNet: MeanVFE -> VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> AnchorHeadSingle."""
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import nn
 
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.grid import check_second_grid
 from pcdet_memslidar.models.anchor_head import AnchorHeadSingle
 from pcdet_memslidar.models.backbone_2d import BaseBEVBackbone
-from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x, sparse_output_depth
+from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
 from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.post_processing import post_processing, size_limits
 from pcdet_memslidar.models.vfe import MeanVFE
@@ -28,43 +28,6 @@ def _lookup(registry: dict, section: str, model_cfg):
     return registry[name]
 
 
-def check_grid(model_cfg, grid_size) -> None:
-    """ConfigError unless the voxel grid (x, y, z cells) fits the sparse backbone, BEV backbone and anchors."""
-    grid_size = np.asarray(grid_size)
-    depth = sparse_output_depth(int(grid_size[2]))
-    bev_features = model_cfg.MAP_TO_BEV.NUM_BEV_FEATURES
-    if depth < 1 or 128 * depth != bev_features:
-        raise ConfigError(f"MODEL.MAP_TO_BEV.NUM_BEV_FEATURES is {bev_features} but a grid {int(grid_size[2])} voxels "
-                          f"deep gives {128 * max(depth, 0)}: use 40 z cells (z range / z voxel = 40) for 256")
-    multiple = 8 * int(np.prod(model_cfg.BACKBONE_2D.get("LAYER_STRIDES", [1])))
-    if grid_size[0] % multiple or grid_size[1] % multiple:
-        raise ConfigError(f"the voxel grid has {int(grid_size[0])} x {int(grid_size[1])} cells (x, y); SECOND with "
-                          f"LAYER_STRIDES {list(model_cfg.BACKBONE_2D.LAYER_STRIDES)} needs multiples of {multiple}: "
-                          f"change POINT_CLOUD_RANGE or VOXEL_SIZE")
-    head_stride = bev_output_stride(model_cfg.BACKBONE_2D)
-    for anchor in model_cfg.DENSE_HEAD.get("ANCHOR_GENERATOR_CONFIG", []):
-        if anchor["feature_map_stride"] != head_stride:
-            raise ConfigError(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: feature_map_stride is "
-                              f"{anchor['feature_map_stride']} but BACKBONE_2D (LAYER_STRIDES "
-                              f"{list(model_cfg.BACKBONE_2D.LAYER_STRIDES)}, UPSAMPLE_STRIDES "
-                              f"{list(model_cfg.BACKBONE_2D.UPSAMPLE_STRIDES)}) outputs stride {head_stride:g}: "
-                              f"set feature_map_stride {head_stride:g} or change UPSAMPLE_STRIDES")
-
-
-def bev_output_stride(backbone_2d_cfg) -> float:
-    """Voxels per cell of BaseBEVBackbone's output on VoxelBackBone8x's stride-8 map (the anchors' stride);
-    ConfigError when the levels it concatenates are upsampled to different strides."""
-    strides = 8 * np.cumprod(backbone_2d_cfg.get("LAYER_STRIDES", [1])).astype(np.float64)
-    upsample = [float(up) for up in backbone_2d_cfg.get("UPSAMPLE_STRIDES", [])]
-    levels = [float(stride / upsample[level] if level < len(upsample) else stride)
-              for level, stride in enumerate(strides)]
-    if len(set(levels)) > 1:
-        raise ConfigError(f"BACKBONE_2D: LAYER_STRIDES {list(backbone_2d_cfg.LAYER_STRIDES)} with UPSAMPLE_STRIDES "
-                          f"{upsample} bring its levels to strides {levels}; they must meet at one stride")
-    extra = upsample[len(strides):]  # one more upsampling after the concatenation
-    return levels[0] / (extra[0] if extra else 1.0)
-
-
 class SECONDNet(nn.Module):
     """The SECOND detector with OpenPCDet's module names, so state dicts match OpenPCDet's key for key.
 
@@ -80,8 +43,7 @@ class SECONDNet(nn.Module):
         self.dataset = dataset
         self.class_names = list(dataset.class_names)
         self.register_buffer("global_step", torch.LongTensor(1).zero_())
-        grid_size = np.asarray(dataset.grid_size)
-        check_grid(model_cfg, grid_size)
+        grid_size = check_second_grid(model_cfg, dataset.point_cloud_range, dataset.voxel_size)
 
         vfe = _lookup(VFES, "VFE", model_cfg)(
             model_cfg=model_cfg.VFE, num_point_features=dataset.point_feature_encoder.num_point_features,

@@ -1,1 +1,2 @@
-"""Training and evaluation loops, checkpoints, distributed training."""
+"""Training (train.train) and prediction (predict.predict) of a detector, their loops, checkpoints, distributed
+training."""

@@ -1,4 +1,4 @@
-"""Process set-up shared by training and testing: seeds, torch threads, device, logger."""
+"""Process set-up shared by training and testing: seeds, torch threads, data-loader workers, device, logger."""
 from __future__ import annotations
 
 import logging
@@ -26,6 +26,13 @@ def set_torch_threads(local_world_size: int = 1) -> int:
     threads = max(1, available_cores() // max(1, local_world_size))
     torch.set_num_threads(threads)
     return threads
+
+
+def default_workers() -> int:
+    """Data-loader worker processes when none are asked for: 0 without CUDA (loading in the training process leaves
+    the cores to the model, and a 2-core machine gets no over-subscription warning), else OpenPCDet's 4, at most
+    the free cores."""
+    return min(4, available_cores()) if torch.cuda.is_available() else 0
 
 
 def get_device(local_rank: int = 0) -> torch.device:

@@ -8,32 +8,32 @@ import time
 from pathlib import Path
 
 import torch
-import tqdm
 
 from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.runtime.distributed import get_dist_info, merge_results_dist
 from pcdet_memslidar.utils.atomic import write_bytes
+from pcdet_memslidar.utils.progress import progress_bar
 
 
 def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | None, device, dist_test: bool = False,
                    result_dir: str | Path | None = None, save_to_file: bool = False) -> dict:
-    """Run `model` over `dataloader`, write result.pkl (det_annos) to `result_dir`, and return on rank 0 the
-    dataset's evaluation scalars plus recall_rcnn_<t> and infer_time_ms (mean per frame, first batch excluded
-    as warm-up when there are more); other ranks return {}."""
+    """Run `model` over `dataloader`, write result.pkl (det_annos) to `result_dir` (and, with save_to_file, KITTI
+    labels with scores under prediction_folder(result_dir)), and return on rank 0 the dataset's evaluation scalars
+    plus recall_rcnn_<t> and infer_time_ms (mean per frame, first batch excluded as warm-up when there are more);
+    other ranks return {}."""
     logger = logger or logging.getLogger(__name__)
     rank, world_size = get_dist_info()
     dataset = dataloader.dataset
     class_names = dataset.class_names
-    final_output_dir = Path(result_dir) / "final_result" / "data" if save_to_file and result_dir else None
+    final_output_dir = prediction_folder(result_dir) if save_to_file and result_dir else None
     thresholds = cfg.MODEL.POST_PROCESSING.RECALL_THRESH_LIST
     recall = {"gt": 0, **{f"rcnn_{t}": 0 for t in thresholds}}
     det_annos, batch_times = [], []
     model.eval()
     logger.info(f"*************** EPOCH {epoch_id} EVALUATION *****************")
-    quiet = {"disable": True} if rank != 0 else {}  # rank 0 leaves `disable` to tqdm (TQDM_DISABLE=1 silences it)
-    for batch in tqdm.tqdm(iterate_batches(dataloader), total=len(dataloader), desc="eval", leave=False,
-                           dynamic_ncols=True, **quiet):
+    for batch in progress_bar(iterate_batches(dataloader), enabled=rank == 0, total=len(dataloader), desc="eval",
+                              leave=False):
         load_data_to_device(batch, device)
         start = time.perf_counter()
         with torch.no_grad():
@@ -72,6 +72,11 @@ def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | No
     ret_dict.update(result_dict)
     logger.info("****************Evaluation done.*****************")
     return ret_dict
+
+
+def prediction_folder(result_dir: str | Path) -> Path:
+    """Where eval_one_epoch(save_to_file=True) writes KITTI labels with scores: <folder>/<source>/<frame id>.txt."""
+    return Path(result_dir) / "final_result" / "data"
 
 
 def split_config(cfg, split: str):

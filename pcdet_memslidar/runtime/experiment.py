@@ -1,8 +1,7 @@
-"""What tools/train.py and tools/test.py share: OpenPCDet's common flags, config loading, the output layout
-output/<group>/<cfg>/<tag>/, process set-up (distributed, threads, device) and the AP summary line."""
+"""What training and testing share: the process a run executes in (distributed or not, device, threads), the
+output layout output/<group>/<cfg>/<tag>/, the checks of the training settings, and the AP summary line."""
 from __future__ import annotations
 
-import argparse
 import math
 import os
 from dataclasses import dataclass
@@ -10,8 +9,6 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.config import load_config
-from pcdet_memslidar.datasets.grid import check_config_grid
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.runtime.common import get_device, set_torch_threads
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size
@@ -19,55 +16,39 @@ from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_s
 AP_KEYS = ("AP3D_R40", "APBEV_R40", "AP3D_R11", "APBEV_R11")
 
 
-def add_common_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags train.py and test.py share (OpenPCDet's names; --cfg is an alias of --cfg_file)."""
-    parser.add_argument("--cfg_file", "--cfg", dest="cfg_file", required=True, help="experiment config (YAML)")
-    parser.add_argument("--batch_size", type=int, default=None, help="frames per batch and process "
-                                                                     "(default OPTIMIZATION.BATCH_SIZE_PER_GPU)")
-    parser.add_argument("--workers", type=int, default=4, help="data loader worker processes")
-    parser.add_argument("--extra_tag", default="default", help="output sub-folder name")
-    parser.add_argument("--ckpt", default=None, help="checkpoint to start from (train) or evaluate (test)")
-    parser.add_argument("--launcher", choices=["none", "pytorch", "slurm"], default="none",
-                        help="pytorch: one process per device under torchrun (gloo on CPU, nccl on GPU)")
-    parser.add_argument("--tcp_port", type=int, default=18888, help="rendezvous port when MASTER_PORT is unset")
-    parser.add_argument("--local_rank", "--local-rank", type=int, default=None, help="set by the launcher")
-    parser.add_argument("--set", dest="set_cfgs", default=None, nargs=argparse.REMAINDER,
-                        help="config overrides: KEY.SUB VALUE ... (e.g. --set PROFILE smoke)")
-    parser.add_argument("--max_waiting_mins", type=int, default=0, help="minutes to wait for a checkpoint")
-    parser.add_argument("--start_epoch", type=int, default=0, help="first epoch to evaluate")
-    parser.add_argument("--save_to_file", action="store_true", default=False, help="write KITTI label files")
-    parser.add_argument("--output_dir", default=None, help="output root (default <repo>/output)")
+@dataclass(frozen=True)
+class Process:
+    """The process a run executes in: its device and torch threads, and its rank among `world_size` processes
+    (dist: under torch.distributed, one process per device)."""
 
-
-@dataclass
-class Experiment:
-    """A loaded config and the process it runs in."""
-
-    cfg: object
-    output_dir: Path
-    dist: bool
-    rank: int
-    world_size: int
     device: torch.device
     threads: int
-    batch_size: int
+    dist: bool = False
+    rank: int = 0
+    world_size: int = 1
 
 
-def setup_experiment(args: argparse.Namespace) -> Experiment:
-    """Load the config, join the process group (--launcher pytorch), set threads and device, and name the
-    output folder <output root>/<group>/<cfg name>/<extra_tag>."""
-    if args.launcher == "slurm":
-        raise SystemExit("--launcher slurm is not supported: start the processes with torchrun and --launcher pytorch")
-    cfg = load_config(args.cfg_file, args.set_cfgs)
-    check_config_grid(cfg)  # a grid that does not fit SECOND is rejected before any data is read
-    batch_size = positive_count(args.batch_size, "--batch_size", cfg, "BATCH_SIZE_PER_GPU")
-    dist = args.launcher == "pytorch"
-    world_size, rank = init_dist_pytorch(args.tcp_port, args.local_rank) if dist else (1, 0)
-    cfg.LOCAL_RANK = int(os.environ.get("LOCAL_RANK", 0)) if dist else 0
-    threads = set_torch_threads(local_world_size() if dist else 1)
-    root = Path(args.output_dir) if args.output_dir else Path(cfg.ROOT_DIR) / "output"
-    output_dir = root / cfg.EXP_GROUP_PATH / cfg.TAG / args.extra_tag
-    return Experiment(cfg, output_dir, dist, rank, world_size, get_device(cfg.LOCAL_RANK), threads, batch_size)
+def local_process() -> Process:
+    """This process alone: the first CUDA device (else the CPU) with the torch threads it already has."""
+    return Process(get_device(), torch.get_num_threads())
+
+
+def start_process(launcher: str = "none", tcp_port: int = 18888, local_rank: int | None = None) -> Process:
+    """Join the process group (launcher 'pytorch': one process per device under torchrun; 'none': this process
+    alone), give this process its share of the free cores as torch threads, and pick its device."""
+    if launcher not in ("none", "pytorch"):
+        raise ConfigError(f"--launcher {launcher} is not supported: start the processes with torchrun and "
+                          f"--launcher pytorch")
+    dist = launcher == "pytorch"
+    world_size, rank = init_dist_pytorch(tcp_port, local_rank) if dist else (1, 0)
+    device = get_device(int(os.environ.get("LOCAL_RANK", 0)) if dist else 0)
+    return Process(device, set_torch_threads(local_world_size() if dist else 1), dist, rank, world_size)
+
+
+def output_folder(cfg, output_root: str | Path | None, extra_tag: str) -> Path:
+    """OpenPCDet's run folder <output root>/<group>/<cfg name>/<extra_tag> (default root: <repo>/output)."""
+    root = Path(output_root) if output_root else Path(cfg.ROOT_DIR) / "output"
+    return root / cfg.EXP_GROUP_PATH / cfg.TAG / extra_tag
 
 
 def positive_count(option_value: int | None, option: str, cfg, key: str) -> int:

@@ -8,13 +8,13 @@ import time
 from pathlib import Path
 
 import torch
-import tqdm
 
 from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, list_checkpoints, load_params_from_file,
                                                 load_params_with_optimizer, save_checkpoint, unwrap)
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+from pcdet_memslidar.utils.progress import progress_bar
 
 
 def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: int, epochs: int, logger,
@@ -98,11 +98,10 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
     batches = _batches(train_loader, train_sampler, start_epoch, state)
     show_bar = rank == 0 and not use_tqdm_to_record
     last_save = time.time()
-    for epoch in tqdm.trange(start_epoch, total_epochs, desc="epochs", dynamic_ncols=True, disable=not show_bar):
+    for epoch in progress_bar(range(start_epoch, total_epochs), enabled=show_bar, desc="epochs"):
         epoch_start = time.time()
         epoch_loss = 0.0
-        with tqdm.tqdm(total=iters_per_epoch, desc="train", leave=False, dynamic_ncols=True,
-                       disable=not show_bar) as bar:
+        with progress_bar(total=iters_per_epoch, enabled=show_bar, desc="train", leave=False) as bar:
             for step in range(iters_per_epoch):
                 loss, tb_dict = train_one_step(model, optimizer, lr_scheduler, next(batches),
                                                optim_cfg.GRAD_NORM_CLIP, device, scaler)

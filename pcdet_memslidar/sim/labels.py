@@ -12,12 +12,12 @@ import bisect
 
 import numpy as np
 
+from pcdet_memslidar.geometry.boxes import normalize_heading
+from pcdet_memslidar.io.kitti import CLASS_NAME, MIN_BOX_POINTS
 from pcdet_memslidar.sim.bodies import BodyBank
 from pcdet_memslidar.sim.motion import TrajectoryStack
 from pcdet_memslidar.sim.people import Person
 
-CLASS_NAME = "Pedestrian"
-MIN_POINTS = 5  # boxes with fewer points are kept in the metadata but not labelled
 OCCLUSION_LEVELS = (0.1, 0.5)  # occluded share below which a box is KITTI level 0 (fully visible), 1 (partly)
 
 
@@ -36,8 +36,7 @@ def person_boxes(bank: BodyBank, lod: str, people: list[Person], time_s: float) 
     c, s = np.cos(heading), np.sin(heading)
     x = xy[:, 0] + c * centre[:, 0] - s * centre[:, 1]
     y = xy[:, 1] + s * centre[:, 0] + c * centre[:, 1]
-    wrapped = (heading + np.pi) % (2 * np.pi) - np.pi
-    return np.column_stack([x, y, centre[:, 2], high - low, wrapped])
+    return np.column_stack([x, y, centre[:, 2], high - low, normalize_heading(heading)])
 
 
 def occlusion_level(occluded_share: float) -> int:
@@ -51,13 +50,13 @@ def label_people(bank: BodyBank, lod: str, people: list[Person], time_s: float, 
 
     points_per_person (people,) returned points of each person; hits_per_person (people,) pulses whose nearest
     hit is the person (before dropout); unoccluded (people,) pulses that would hit each person on its own.
-    Returns boxes (M, 7) and names (M,) of the labelled people (>= MIN_POINTS points) and one metadata dict per
+    Returns boxes (M, 7) and names (M,) of the labelled people (>= MIN_BOX_POINTS points) and one metadata dict per
     person (labelled or not)."""
     boxes, records = [], []
     for index, (person, box) in enumerate(zip(people, person_boxes(bank, lod, people, time_s))):
         visible = int(points_per_person[index])
         share = 0.0 if unoccluded[index] == 0 else float(max(0.0, 1.0 - hits_per_person[index] / unoccluded[index]))
-        labelled = visible >= MIN_POINTS
+        labelled = visible >= MIN_BOX_POINTS
         if labelled:
             boxes.append(box)
         records.append(dict(box=[round(v, 6) for v in box.tolist()], num_points=visible, labelled=labelled,

@@ -22,7 +22,6 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 import pcdet_memslidar
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
@@ -36,6 +35,7 @@ from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
 from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
+from pcdet_memslidar.utils.progress import progress_bar
 
 SETTINGS_FILE = "simulation.json"
 FRAME_THREADS = 2  # frames made at a time by one process
@@ -170,7 +170,7 @@ def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: i
     else:  # frames in threads: their compiled loops, large numpy operations and file writes run outside
         # Python's interpreter lock (Open3D's cast_rays and the Python parts do not: 1.4x one core, not 2x)
         pool = ThreadPoolExecutor(FRAME_THREADS)
-    with pool, tqdm(total=count, desc=f"simulate {preset.name}", unit="frame", disable=not progress) as bar:
+    with pool, progress_bar(total=count, desc=f"simulate {preset.name}", unit="frame", enabled=progress) as bar:
         for points_of_frame in bounded_map(pool, _write_one, jobs, ahead=4 * max(workers, FRAME_THREADS)):
             points += points_of_frame
             bar.update()

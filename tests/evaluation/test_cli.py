@@ -7,7 +7,7 @@ import pytest
 
 from pcdet_memslidar.cli import main
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.evaluation.cli import evaluate_folders
+from pcdet_memslidar.evaluation.folders import evaluate_folders
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io.kitti import label_from_boxes, write_label
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar import cli
+from pcdet_memslidar.config import SCHEMA_FILE, load_config
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io.bfpc import read_bfpc
@@ -25,6 +26,7 @@ def test_real_recording_imports_with_a_given_mount(tmp_path, real_recording, rec
     report = import_dataset("bfpc", real_recording, tmp_path / "real", mount=mount)
     assert report["frames"] == 10 and report["frames_without_labels"] == 10 and report["boxes"] == 0
     assert (report["train_frames"], report["val_frames"]) == (7, 3)
+    assert report["point_cloud_range"] == load_config(SCHEMA_FILE).DATA_CONFIG.POINT_CLOUD_RANGE  # the detector's
     for entry in report["per_frame"]:
         assert entry["points"] + entry["dropped_invalid_points"] == PULSES_PER_FRAME
     assert report["dropped_invalid_points"] == sum((~f.returned).sum() for f in recording.frames)

@@ -42,11 +42,9 @@ def second_model_cfg(num_filters=(128, 256), upsample_filters=(256, 256), layer_
 
 def fake_dataset(point_cloud_range=PERSON_RANGE, voxel_size=PERSON_VOXEL, class_names=("Pedestrian",)):
     """The attributes build_network reads from an OpenPCDet dataset."""
-    pc_range = np.asarray(point_cloud_range, dtype=np.float32)
-    grid = np.round((pc_range[3:] - pc_range[:3]) / np.asarray(voxel_size)).astype(np.int64)
-    return SimpleNamespace(point_feature_encoder=SimpleNamespace(num_point_features=4), grid_size=grid,
-                           point_cloud_range=pc_range, voxel_size=list(voxel_size), class_names=list(class_names),
-                           depth_downsample_factor=None)
+    return SimpleNamespace(point_feature_encoder=SimpleNamespace(num_point_features=4),
+                           point_cloud_range=np.asarray(point_cloud_range, dtype=np.float32),
+                           voxel_size=list(voxel_size), class_names=list(class_names), depth_downsample_factor=None)
 
 
 SMALL_RANGE = [0.0, -5.12, -0.5, 10.24, 5.12, 3.5]  # 128 x 128 x 40 voxels of PERSON_VOXEL

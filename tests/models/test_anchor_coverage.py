@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from pcdet_memslidar.config import load_config
-from pcdet_memslidar.datasets.grid import check_config_grid
+from pcdet_memslidar.grid import check_config_grid
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
 from pcdet_memslidar.models.target_assigner import matched_share
 from pcdet_memslidar.sim.domains import get_domain

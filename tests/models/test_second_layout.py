@@ -6,10 +6,11 @@ import pytest
 import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
-from second_fixtures import PERSON_RANGE, fake_dataset, second_model_cfg  # noqa: E402
+from second_fixtures import PERSON_RANGE, PERSON_VOXEL, fake_dataset, second_model_cfg, small_model_cfg  # noqa: E402
 
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.errors import ConfigError  # noqa: E402
-from pcdet_memslidar.models import build_network  # noqa: E402
+from pcdet_memslidar.models import build_network, load_data_to_device  # noqa: E402
 
 # Measured from OpenPCDet (commit 8cacccec) on CPU for the person config; a copy of ../shared/reference/.
 REFERENCE = Path(__file__).with_name("openpcdet_second_person_state_dict.tsv")
@@ -72,6 +73,30 @@ def test_checkpoint_loads_strictly_both_ways(person_model):
 def test_grids_that_do_not_fit_are_refused_with_the_fix(pc_range, voxel, message):
     with pytest.raises(ConfigError, match=message):
         build_network(second_model_cfg(), num_class=1, dataset=fake_dataset(pc_range, voxel))
+
+
+def _one_level_stride_4_head():
+    cfg = small_model_cfg()
+    cfg.BACKBONE_2D.update(LAYER_NUMS=[1], LAYER_STRIDES=[1], NUM_FILTERS=[32], UPSAMPLE_STRIDES=[2],
+                           NUM_UPSAMPLE_FILTERS=[64])
+    cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].feature_map_stride = 4
+    return cfg
+
+
+@pytest.mark.parametrize("model_cfg, pc_range, grid", [
+    (small_model_cfg, [0.0, -5.12, -0.5, 10.24, 5.12, 4.2], [128, 128, 47]),  # the former loader rule: 40 z only
+    (small_model_cfg, [0.0, -5.12, -0.5, 10.24, 5.12, 5.0], [128, 128, 55]),
+    (_one_level_stride_4_head, [0.0, -4.8, -0.5, 9.6, 4.8, 3.5], [120, 120, 40]),  # the former rule: x, y 16 x n
+])
+def test_grids_the_rule_takes_run_and_the_bev_map_has_the_anchors_size(model_cfg, pc_range, grid):
+    frames = SyntheticPersonDataset(pc_range, PERSON_VOXEL, num_frames=2, seed=1)
+    assert frames.grid_size.tolist() == grid
+    torch.manual_seed(0)
+    model = build_network(model_cfg(), num_class=1, dataset=frames).train()
+    ret, _, _ = model(load_data_to_device(frames.collate_batch([frames[0], frames[1]]), "cpu"))
+    assert torch.isfinite(ret["loss"])
+    cls_preds = model.dense_head.forward_ret_dict["cls_preds"]  # (B, H, W, anchors per location)
+    assert tuple(cls_preds.shape[1:3]) == tuple(model.dense_head.anchors[0].shape[1:3])
 
 
 def test_unknown_module_name_is_refused():

@@ -12,10 +12,10 @@ from torch.utils.data import DataLoader
 sys.path.insert(0, str(Path(__file__).parent))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg, small_optim_cfg  # noqa: E402
 
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.models import build_network, load_data_to_device  # noqa: E402
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch  # noqa: E402
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler  # noqa: E402
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.runtime.train_loop import train_model  # noqa: E402
 
 

@@ -4,7 +4,7 @@ import logging
 import numpy as np
 import pytest
 
-from pcdet_memslidar.datasets.mixing import Source
+from pcdet_memslidar.datasets.mixing import Source, split_sources
 from pcdet_memslidar.errors import ConfigError, OutputError
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.reproduce import RUNS, check_run_config, frames_needed, model_config, prepare_domain, reproduce
@@ -22,6 +22,17 @@ def test_frames_needed_per_profile(tmp_path):
     paper = frames_needed({model: model_config(model, "paper", tmp_path) for model in RUNS})
     assert {name: source.count for name, source in paper.items()} == \
         {"sim": 2100, "real": 2100, "industrial": 230, "industrial_seed1": 2100}
+
+
+def test_test_frames_come_from_the_profiles_and_the_test_split_reads_them_all(tmp_path):
+    quick = frames_needed({model: model_config(model, "quick", tmp_path) for model in RUNS})
+    assert quick["industrial"].count == 100  # PROFILES.quick: DATA_CONFIG.TEST_SOURCE.COUNT
+    cfg = model_config("M3", "smoke", tmp_path, ["DATA_CONFIG.TEST_SOURCE.COUNT", "5"])
+    assert frames_needed({"M3": cfg})["industrial"].count == 5
+    assert split_sources(cfg.DATA_CONFIG, "test", tmp_path)[0].count is None  # every frame of the folder
+    cfg = model_config("M3", "smoke", tmp_path, ["DATA_CONFIG.TEST_SOURCE.COUNT", "0"])
+    with pytest.raises(ConfigError, match="DATA_CONFIG.TEST_SOURCE.COUNT is 0: give a positive number of frames"):
+        frames_needed({"M3": cfg})
 
 
 def test_one_folder_of_two_domains_is_refused(tmp_path):

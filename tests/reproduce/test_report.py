@@ -136,4 +136,5 @@ def test_figures_are_written(tmp_path):
     ]
     for path in paths:
         assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.png", "ex.png", "f.png", "pr.png", "t.png"]  # no temporary files left
+    # no temporary files left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.png", "ex.png", "f.png", "pr.png", "t.png"]

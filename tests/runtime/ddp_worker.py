@@ -9,11 +9,11 @@ from torch.utils.data import DataLoader, DistributedSampler
 sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg, small_optim_cfg  # noqa: E402
 
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.models import build_network  # noqa: E402
 from pcdet_memslidar.runtime.common import set_random_seed, set_torch_threads  # noqa: E402
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size, merge_results_dist  # noqa: E402
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler  # noqa: E402
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.runtime.train_loop import train_model  # noqa: E402
 
 

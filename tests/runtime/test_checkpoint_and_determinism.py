@@ -9,13 +9,13 @@ from torch.utils.data import DataLoader
 sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg, small_optim_cfg  # noqa: E402
 
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.errors import DataFormatError  # noqa: E402
 from pcdet_memslidar.models import build_network  # noqa: E402
 from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, list_checkpoints,  # noqa: E402
                                                 load_params_from_file, load_params_with_optimizer, save_checkpoint)
 from pcdet_memslidar.runtime.common import set_random_seed  # noqa: E402
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler  # noqa: E402
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.runtime.train_loop import train_model  # noqa: E402
 
 EPOCHS = 2

@@ -11,11 +11,11 @@ import torch
 sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg  # noqa: E402
 
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.errors import DataFormatError  # noqa: E402
 from pcdet_memslidar.models import build_network  # noqa: E402
 from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, load_params_from_file,  # noqa: E402
                                                 read_checkpoint, save_checkpoint)
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
 
 SHIFTED_RANGE = [2.56, -5.12, -0.5, 12.8, 5.12, 3.5]  # the same 128 x 128 x 40 cells as SMALL_RANGE, elsewhere
 

@@ -8,17 +8,17 @@ import torch
 from torch.utils.data import DataLoader
 
 from pcdet_memslidar.config import load_config
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, load_params_from_file, load_params_with_optimizer,
                                                 read_checkpoint, save_checkpoint)
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.runtime.train_loop import train_one_step
 
 REPO = Path(__file__).resolve().parents[2]
 # The config it was trained with (its README): cfgs/m3.yaml, smoke profile, a smaller BEV backbone.
 TINY_BEV = ["PROFILE", "smoke", "MODEL.BACKBONE_2D.LAYER_NUMS", "[1, 1]", "MODEL.BACKBONE_2D.NUM_FILTERS", "[16, 32]",
-            "MODEL.BACKBONE_2D.NUM_UPSAMPLE_FILTERS", "[16, 16]", "MODEL.BACKBONE_2D.UPSAMPLE_STRIDES", "[1, 2]"]
+            "MODEL.BACKBONE_2D.NUM_UPSAMPLE_FILTERS", "[16, 16]"]
 OPENPCDET_KEYS = ["epoch", "it", "model_state", "optimizer_state", "version"]
 
 
@@ -30,7 +30,8 @@ def reference(openpcdet_checkpoint) -> dict:
 @pytest.fixture
 def cfg():
     cfg = load_config(REPO / "cfgs" / "m3.yaml", TINY_BEV)
-    cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].feature_map_stride = 8  # UPSAMPLE_STRIDES [1, 2]
+    cfg.MODEL.BACKBONE_2D.UPSAMPLE_STRIDES = [1, 2]  # and anchors at its stride 8 (the loader checks both together)
+    cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].feature_map_stride = 8
     return cfg
 
 

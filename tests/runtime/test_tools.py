@@ -12,11 +12,11 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
 from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg  # noqa: E402
 
 from pcdet_memslidar import cli  # noqa: E402
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
 from pcdet_memslidar.models import build_network  # noqa: E402
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint  # noqa: E402
-from pcdet_memslidar.runtime import test as test_tool  # noqa: E402
-from pcdet_memslidar.runtime import train as train_tool  # noqa: E402
-from pcdet_memslidar.runtime.synthetic import SyntheticPersonDataset  # noqa: E402
+from pcdet_memslidar.runtime import predict as predict_module  # noqa: E402
+from pcdet_memslidar.runtime import train as train_module  # noqa: E402
 
 
 def _synthetic_dataloader(dataset_cfg, class_names, batch_size, dist, workers=4, training=True, **kwargs):
@@ -26,8 +26,8 @@ def _synthetic_dataloader(dataset_cfg, class_names, batch_size, dist, workers=4,
 
 @pytest.fixture
 def experiment(tmp_path, monkeypatch):
-    monkeypatch.setattr(train_tool, "build_dataloader", _synthetic_dataloader)
-    monkeypatch.setattr(test_tool, "build_dataloader", _synthetic_dataloader)
+    monkeypatch.setattr(train_module, "build_dataloader", _synthetic_dataloader)
+    monkeypatch.setattr(predict_module, "build_dataloader", _synthetic_dataloader)
     cfg_dir = tmp_path / "cfgs" / "people"
     cfg_dir.mkdir(parents=True)
     config = {"CLASS_NAMES": ["Pedestrian"], "DATA_CONFIG": {

@@ -6,11 +6,12 @@ import pytest
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io.kitti import MIN_BOX_POINTS
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
 from pcdet_memslidar.sim.bodies import load_body_bank
 from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.frame import get_caster, render, simulate_frame
-from pcdet_memslidar.sim.labels import MIN_POINTS, person_boxes
+from pcdet_memslidar.sim.labels import person_boxes
 from pcdet_memslidar.sim.motion import make_trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
@@ -38,11 +39,11 @@ def test_person_at_fov_edge_is_labelled_only_with_5_or_more_points():
                                                   np.random.default_rng(index), bank, "fine", 0.2)
         count = records[0]["num_points"]
         counts.append(count)
-        assert records[0]["labelled"] == (count >= MIN_POINTS) == (len(boxes) == 1)
+        assert records[0]["labelled"] == (count >= MIN_BOX_POINTS) == (len(boxes) == 1)
         assert list(names) == ["Pedestrian"] * len(boxes)
     counts = np.array(counts)
     assert counts[0] > 20 and counts[-1] == 0  # inside the FoV, then outside it
-    assert np.any((counts > 0) & (counts < MIN_POINTS))  # a sliver of a person: hit but not labelled
+    assert np.any((counts > 0) & (counts < MIN_BOX_POINTS))  # a sliver of a person: hit but not labelled
 
 
 def test_zero_people_gives_an_empty_label_and_the_static_world():
@@ -97,7 +98,7 @@ def test_domain_presets_have_their_documented_properties(name):
     assert frame.metadata["sensor"] == preset.sensor and len(frame.time_offset) == len(frame.points)
     assert np.all(frame.time_offset >= 0) and np.all(frame.time_offset <= PATTERN.frame_period_s)
     for record, box in zip([r for r in frame.metadata["people"] if r["labelled"]], frame.boxes):
-        assert record["num_points"] >= MIN_POINTS and np.allclose(record["box"], box, atol=1e-5)
+        assert record["num_points"] >= MIN_BOX_POINTS and np.allclose(record["box"], box, atol=1e-5)
 
 
 def _files(root):

@@ -7,7 +7,7 @@ import torch
 
 from ...errors import ConfigError
 from ...geometry.boxes import boxes_to_corners_3d
-from ..grid import grid_size
+from ...grid import grid_size
 
 
 def mask_points_by_range(points: np.ndarray, limit_range: np.ndarray) -> np.ndarray:

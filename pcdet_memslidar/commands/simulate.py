@@ -1,4 +1,4 @@
-"""`memslidar simulate`: generate a domain (sim | real | industrial) as a KITTI-layout dataset."""
+"""`memslidar simulate`: generate a domain (sim | real | industrial) as a KITTI-layout dataset (sim.writer)."""
 from __future__ import annotations
 
 import argparse

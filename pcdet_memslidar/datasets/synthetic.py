@@ -5,13 +5,14 @@ half facing the sensor at the origin) is sampled with points, and a little clutt
 """
 from __future__ import annotations
 
-from collections import defaultdict
-
 import numpy as np
 from torch.utils.data import Dataset
 
-from pcdet_memslidar.datasets.processor.data_processor import VoxelGenerator
-from pcdet_memslidar.geometry.boxes import rotate_points_along_z
+from ..geometry.boxes import rotate_points_along_z
+from ..grid import grid_size
+from ..io.kitti import CLASS_NAME
+from .dataset import DatasetTemplate
+from .processor.data_processor import VoxelGenerator
 
 
 def person_points(box: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -26,9 +27,11 @@ def person_points(box: np.ndarray, count: int, rng: np.random.Generator) -> np.n
 class SyntheticPersonDataset(Dataset):
     """`num_frames` frames of 1-3 people (frame i seeded by seed + i), voxelised as OpenPCDet batches.
 
-    Attributes read by build_network: class_names, point_cloud_range, voxel_size, grid_size,
+    OpenPCDet's dataset attributes: class_names, point_cloud_range, voxel_size, grid_size,
     point_feature_encoder.num_point_features (4: x, y, z, intensity).
     """
+
+    collate_batch = staticmethod(DatasetTemplate.collate_batch)  # the batches of MEMSLidarDataset
 
     class _Encoder:
         num_point_features = 4
@@ -36,11 +39,10 @@ class SyntheticPersonDataset(Dataset):
     def __init__(self, point_cloud_range, voxel_size, num_frames: int = 8, seed: int = 0, training: bool = True,
                  max_points_per_voxel: int = 5, max_voxels: int = 40000, empty_frames: tuple[int, ...] = (),
                  no_box_frames: tuple[int, ...] = ()):
-        self.class_names = ["Pedestrian"]
+        self.class_names = [CLASS_NAME]
         self.point_cloud_range = np.asarray(point_cloud_range, dtype=np.float32)
         self.voxel_size = list(voxel_size)
-        self.grid_size = np.round((self.point_cloud_range[3:] - self.point_cloud_range[:3])
-                                  / np.asarray(voxel_size)).astype(np.int64)
+        self.grid_size = grid_size(self.point_cloud_range, voxel_size)
         self.point_feature_encoder = self._Encoder()
         self.training = training
         self.voxel_generator = VoxelGenerator(voxel_size, self.point_cloud_range, 4, max_points_per_voxel, max_voxels)
@@ -65,39 +67,19 @@ class SyntheticPersonDataset(Dataset):
         if empty:
             points = points[:0]
         return {"frame_id": f"{index:06d}", "points": points, "gt_boxes": boxes,
-                "gt_names": np.array(["Pedestrian"] * len(boxes))}
+                "gt_names": np.array([CLASS_NAME] * len(boxes))}
 
     def __len__(self) -> int:
         return len(self.frames)
 
     def __getitem__(self, index: int) -> dict:
+        """Frame `index` as DatasetTemplate.prepare_data gives one: points (N, 4), gt_boxes (M, 8) with class 1,
+        voxels, voxel_coords (V, 3) [z, y, x], voxel_num_points, frame_id."""
         frame = self.frames[index]
         voxels, coords, num_points = self.voxel_generator.generate(frame["points"])
         gt_boxes = np.column_stack([frame["gt_boxes"], np.ones(len(frame["gt_boxes"]), np.float32)])
         return {"frame_id": frame["frame_id"], "points": frame["points"], "gt_boxes": gt_boxes.astype(np.float32),
-                "gt_names": frame["gt_names"], "voxels": voxels, "voxel_coords": coords,
-                "voxel_num_points": num_points}
-
-    @staticmethod
-    def collate_batch(batch_list: list[dict], _unused=False) -> dict:
-        """OpenPCDet batch: points (N, 5) and voxel_coords (V, 4) get the frame index as column 0; gt_boxes
-        padded with zero rows to (B, M_max, 8)."""
-        data = defaultdict(list)
-        for frame in batch_list:
-            for key, value in frame.items():
-                data[key].append(value)
-        batch_size = len(batch_list)
-        batch = {"batch_size": batch_size, "frame_id": np.array(data["frame_id"]), "gt_names": data["gt_names"]}
-        for key in ("points", "voxel_coords"):
-            batch[key] = np.concatenate([np.pad(v, ((0, 0), (1, 0)), constant_values=i)
-                                         for i, v in enumerate(data[key])])
-        batch["voxels"] = np.concatenate(data["voxels"])
-        batch["voxel_num_points"] = np.concatenate(data["voxel_num_points"])
-        max_boxes = max(1, max(len(b) for b in data["gt_boxes"]))
-        batch["gt_boxes"] = np.zeros((batch_size, max_boxes, 8), np.float32)
-        for i, boxes in enumerate(data["gt_boxes"]):
-            batch["gt_boxes"][i, :len(boxes)] = boxes
-        return batch
+                "voxels": voxels, "voxel_coords": coords, "voxel_num_points": num_points}
 
     def generate_prediction_dicts(self, batch_dict: dict, pred_dicts: list[dict], class_names, output_path=None):
         """Per frame {name, score, boxes_lidar, pred_labels, frame_id} numpy annotations (OpenPCDet's format)."""

@@ -1,15 +1,13 @@
-"""`memslidar eval --gt DIR --pred DIR [--json]`: AP of KITTI-format prediction labels against ground truth.
+"""AP of KITTI-format label folders: prediction labels (with scores) against ground truth, frame by file name.
 
 Frames are matched by file name (000123.txt). A ground-truth frame without a prediction file counts as a frame with
-no detections; a prediction file without ground truth cannot be scored and is skipped. Both are counted and
-reported on stderr. Prediction files carry a 16th score column (an empty file means no detections).
+no detections; a prediction file without ground truth cannot be scored and is skipped; evaluate_folders counts both.
+Prediction files carry a 16th score column (an empty file means no detections).
 Only Pedestrian objects count. KITTI's other classes (Car, Cyclist, DontCare, ...) are left out as KITTI's evaluation
 does; a class that is Pedestrian in another case ('pedestrian') is an error, any other name a warning on stderr.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -17,12 +15,11 @@ import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
-from pcdet_memslidar.io.kitti import (KITTI_CLASSES, boxes_from_label, check_class_case, object_line,
+from pcdet_memslidar.io.kitti import (CLASS_NAME, KITTI_CLASSES, boxes_from_label, check_class_case, object_line,
                                       read_label)
 
-from .metrics import ap_summary, evaluate, format_results
+from .metrics import evaluate
 
-CLASS_NAME = "Pedestrian"  # the class `memslidar eval` scores
 
 
 def read_label_folder(folder: Path, with_score: bool) -> dict[str, dict]:
@@ -76,21 +73,3 @@ def evaluate_folders(gt_dir: Path, pred_dir: Path) -> tuple[dict, dict[str, int]
     counts = {"frames": len(frame_ids), "missing_predictions": len(set(gt) - set(pred)),
               "predictions_without_gt": len(set(pred) - set(gt))}
     return result, counts
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--gt", type=Path, required=True, help="ground-truth KITTI label_2 folder (*.txt)")
-    parser.add_argument("--pred", type=Path, required=True, help="prediction label folder (*.txt with a score column)")
-    parser.add_argument("--json", action="store_true", help="print one JSON object of AP values instead of the table")
-
-
-def run(args: argparse.Namespace) -> int:
-    result, counts = evaluate_folders(args.gt, args.pred)
-    print(f"{counts['frames']} ground-truth frames; {counts['missing_predictions']} without a prediction file "
-          f"(scored as no detections); {counts['predictions_without_gt']} prediction files without ground truth "
-          f"(skipped)", file=sys.stderr)
-    if args.json:
-        print(json.dumps(ap_summary(result) | {"num_gt": result["num_gt"], "num_dt": result["num_dt"]} | counts))
-    else:
-        print(format_results(result))
-    return 0

@@ -1,0 +1,63 @@
+"""Options that several commands take, added the same way everywhere (--profile, --set, --workers), OpenPCDet's
+flags of `memslidar train` and `memslidar test`, and the experiment set-up those flags ask for."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from pcdet_memslidar.config import load_config
+from pcdet_memslidar.runtime.common import default_workers
+from pcdet_memslidar.runtime.experiment import Process, output_folder, positive_count, start_process
+
+
+def add_profile(parser: argparse.ArgumentParser, default: str | None = None) -> None:
+    """--profile NAME: an entry of the config's PROFILES, applied before --set."""
+    parser.add_argument("--profile", default=default,
+                        help="an entry of the config's PROFILES: smoke (seconds, for tests), quick (a 2-core CPU), "
+                             "paper (a GPU: the config as written); same as --set PROFILE NAME (default: "
+                             f"{default or 'the config PROFILE, else paper'})")
+
+
+def add_set(parser: argparse.ArgumentParser) -> None:
+    """--set KEY VALUE ...: config overrides after the profile; must come last."""
+    parser.add_argument("--set", dest="set_cfgs", default=None, nargs=argparse.REMAINDER,
+                        help="config overrides KEY.SUB VALUE ... after the profile (e.g. --set OPTIMIZATION.LR 0.002); "
+                             "put it last")
+
+
+def add_workers(parser: argparse.ArgumentParser) -> None:
+    """--workers N: data-loader worker processes (default: runtime.common.default_workers() of this machine)."""
+    parser.add_argument("--workers", type=int, default=default_workers(),
+                        help="data-loader worker processes per model (default here %(default)s: 0 on a CPU, where "
+                             "loading in the training process is fastest; up to 4 with CUDA)")
+
+
+def add_openpcdet_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags `memslidar train` and `memslidar test` share (OpenPCDet's tools/train.py and tools/test.py names;
+    --cfg is an alias of --cfg_file), plus --profile."""
+    parser.add_argument("--cfg_file", "--cfg", dest="cfg_file", required=True, help="experiment config (YAML)")
+    parser.add_argument("--batch_size", type=int, default=None, help="frames per batch and process "
+                                                                     "(default OPTIMIZATION.BATCH_SIZE_PER_GPU)")
+    add_workers(parser)
+    parser.add_argument("--extra_tag", default="default", help="output sub-folder name")
+    parser.add_argument("--ckpt", default=None, help="checkpoint to start from (train) or evaluate (test)")
+    parser.add_argument("--launcher", choices=["none", "pytorch", "slurm"], default="none",
+                        help="pytorch: one process per device under torchrun (gloo on CPU, nccl on GPU)")
+    parser.add_argument("--tcp_port", type=int, default=18888, help="rendezvous port when MASTER_PORT is unset")
+    parser.add_argument("--local_rank", "--local-rank", type=int, default=None, help="set by the launcher")
+    parser.add_argument("--max_waiting_mins", type=int, default=0, help="minutes to wait for a checkpoint")
+    parser.add_argument("--start_epoch", type=int, default=0, help="first epoch to evaluate")
+    parser.add_argument("--save_to_file", action="store_true", default=False, help="write KITTI label files")
+    parser.add_argument("--output_dir", default=None, help="output root (default <repo>/output)")
+    add_profile(parser)
+    add_set(parser)
+
+
+def setup_experiment(args: argparse.Namespace) -> tuple[object, Process, Path]:
+    """(cfg, process, run folder) of OpenPCDet's flags: the config (--cfg_file, --profile, --set; --batch_size
+    replaces OPTIMIZATION.BATCH_SIZE_PER_GPU) with its grid (load_config) and batch size checked before any data is
+    read, the process joined to its group (--launcher), and <output root>/<group>/<cfg name>/<extra_tag>."""
+    cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
+    cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU = positive_count(args.batch_size, "--batch_size", cfg, "BATCH_SIZE_PER_GPU")
+    process = start_process(args.launcher, args.tcp_port, args.local_rank)
+    return cfg, process, output_folder(cfg, args.output_dir, args.extra_tag)
