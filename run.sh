@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# All setup, then the job: `bash run.sh reproduce` (the M1-M4 reproduction, quick profile) or `bash run.sh test`.
+# All setup, then the job: `bash run.sh reproduce` (the M1-M4 reproduction, quick profile) or `bash run.sh test` (lint, tests).
 # Creates or refreshes ./.venv, installs torch==2.13.0 (CPU) before anything that depends on torch, then the package.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -16,6 +16,6 @@ export PATH="$PWD/.venv/bin:$PATH"
 
 case "$job" in
   reproduce) exec memslidar reproduce --profile quick "$@" ;;
-  test) exec python -m pytest -q "$@" ;;
+  test) ruff check . && exec python -m pytest -q "$@" ;;  # lint (pyproject.toml [tool.ruff]), then the tests
   *) echo "unknown job '$job': use reproduce or test" >&2; exit 2 ;;
 esac

@@ -44,8 +44,14 @@ from pcdet_memslidar.grid import check_config_grid
 BASE_KEY = "_BASE_CONFIG_"
 PATH_KEYS = ("DATA_PATH",)  # string values resolved relative to the file that wrote them
 DEFAULT_PROFILE = "paper"
-ROOT_DIR = Path(__file__).resolve().parent.parent
-SCHEMA_FILE = ROOT_DIR / "cfgs" / "memslidar_models" / "second_person.yaml"
+_PACKAGE_DIR = Path(__file__).resolve().parent
+# A checkout (or editable install) keeps its configs in <repository>/cfgs and writes output/ and data/ there, as
+# OpenPCDet does under its cfg.ROOT_DIR; an installed package ships them as pcdet_memslidar/cfgs (pyproject.toml)
+# and writes under the working directory.
+IN_CHECKOUT = (_PACKAGE_DIR.parent / "pyproject.toml").is_file() and (_PACKAGE_DIR.parent / "cfgs").is_dir()
+ROOT_DIR = _PACKAGE_DIR.parent if IN_CHECKOUT else Path.cwd()
+CONFIG_DIR = _PACKAGE_DIR.parent / "cfgs" if IN_CHECKOUT else _PACKAGE_DIR / "cfgs"
+SCHEMA_FILE = CONFIG_DIR / "memslidar_models" / "second_person.yaml"
 # Keys a config may write beyond SCHEMA_FILE's: optional keys whose defaults live in the code that reads them, and
 # OpenPCDet's own keys for SECOND (kitti_dataset.yaml, second.yaml, its training loop) that our runtime ignores.
 OPTIONAL_KEYS = (
@@ -89,6 +95,14 @@ def resolve_path(base_file: str | Path | None, value: str | Path) -> Path:
         candidates.insert(0, Path(base_file).resolve().parent / value)
     existing = next((path for path in candidates if path.exists()), candidates[0])
     return existing.resolve()
+
+
+def _as_in_checkout(cfg_file: Path | None) -> Path | None:
+    """Where `cfg_file` would be in a checkout at ROOT_DIR: a shipped config of an installed package resolves its
+    DATA_PATH as from <ROOT_DIR>/cfgs, so data lands under the working directory, not in site-packages."""
+    if cfg_file is None or IN_CHECKOUT or not Path(cfg_file).resolve().is_relative_to(CONFIG_DIR):
+        return cfg_file
+    return ROOT_DIR / "cfgs" / Path(cfg_file).resolve().relative_to(CONFIG_DIR)
 
 
 def _line_of(path: Path, needle: str) -> int | None:
@@ -215,7 +229,7 @@ def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...], at: tupl
         if isinstance(value, dict):
             value = _expand(value, cfg_file, chain, None if at is None else at + (key,))
         elif key in PATH_KEYS and isinstance(value, str):
-            value = str(resolve_path(cfg_file, value))
+            value = str(resolve_path(_as_in_checkout(cfg_file), value))
         own[key] = value
     _merge(result, own)
     return result

@@ -29,10 +29,16 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.config import cfg as global_cfg, load_config
+from pcdet_memslidar.config import CONFIG_DIR, load_config
 from pcdet_memslidar.datasets.infos import create_domain_infos
-from pcdet_memslidar.datasets.mixing import (BUNDLED_DOMAINS, Source, check_count, resolve_sources, source_split,
-                                             split_sources)
+from pcdet_memslidar.datasets.mixing import (
+    BUNDLED_DOMAINS,
+    Source,
+    check_count,
+    resolve_sources,
+    source_split,
+    split_sources,
+)
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.report import HEADLINE, add_figures, environment, model_entry, score_run, write_report
 from pcdet_memslidar.io.layout import KittiLayout
@@ -59,7 +65,7 @@ def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: lis
     """The experiment config cfgs/<model>.yaml with `profile` applied, then DATA_PATH = data_root (if given) and
     the --set overrides [KEY, VALUE, ...]; checked as `memslidar train` checks it (grid, batch size, epochs, lr)."""
     overrides = (["DATA_CONFIG.DATA_PATH", str(data_root)] if data_root is not None else []) + list(set_cfgs or [])
-    cfg = load_config(Path(global_cfg.ROOT_DIR) / "cfgs" / f"{model.lower()}.yaml", overrides, profile=profile)
+    cfg = load_config(CONFIG_DIR / f"{model.lower()}.yaml", overrides, profile=profile)
     check_learning_rate(cfg)
     for key in ("BATCH_SIZE_PER_GPU", "NUM_EPOCHS"):
         positive_count(None, f"--set OPTIMIZATION.{key}", cfg, key)
@@ -296,7 +302,7 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
         "data": {name: {"path": str(needed[name].root), "frames": len(domain_infos), "domain": needed[name].domain,
                         "seed": needed[name].seed, "boxes": sum(len(info["annos"]["name"]) for info in domain_infos)}
                  for name, domain_infos in infos.items()},
-        "models": {model: model_entry(str(Path(cfgs[model].CFG_FILE).relative_to(global_cfg.ROOT_DIR)),
+        "models": {model: model_entry(str(Path(cfgs[model].CFG_FILE).relative_to(CONFIG_DIR.parent)),
                                       table2_counts(cfgs[model]), model_runs) for model, model_runs in runs.items()},
     }
     with clock("figures"):

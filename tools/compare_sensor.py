@@ -56,7 +56,8 @@ def table_rows(real: dict, sim: dict) -> list[tuple[str, str, str]]:
     for bin_ in real["noise_sigma_by_range"]:
         rows.append((f"  sigma median at {bin_[0]}-{bin_[1]} m [cm]", f"{100 * real['noise_sigma_by_range'][bin_]:.2f}",
                      f"{100 * sim['noise_sigma_by_range'].get(bin_, float('nan')):.2f}"))
-    rows += [("no-return fraction [%]", f"{100 * real['no_return_fraction']:.2f}", f"{100 * sim['no_return_fraction']:.2f}"),
+    rows += [("no-return fraction [%]", f"{100 * real['no_return_fraction']:.2f}",
+              f"{100 * sim['no_return_fraction']:.2f}"),
              ("never-return fraction [%]", f"{100 * real['never_return_fraction']:.2f}",
               f"{100 * sim['never_return_fraction']:.2f}"),
              ("intensity median", f"{real['intensity_median']:.0f}", f"{sim['intensity_median']:.0f}"),

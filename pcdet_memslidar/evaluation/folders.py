@@ -15,11 +15,16 @@ import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
-from pcdet_memslidar.io.kitti import (CLASS_NAME, KITTI_CLASSES, boxes_from_label, check_class_case, object_line,
-                                      read_label)
+from pcdet_memslidar.io.kitti import (
+    CLASS_NAME,
+    KITTI_CLASSES,
+    boxes_from_label,
+    check_class_case,
+    object_line,
+    read_label,
+)
 
 from .metrics import evaluate
-
 
 
 def read_label_folder(folder: Path, with_score: bool) -> dict[str, dict]:

@@ -31,8 +31,14 @@ from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
-from .figures import (SCORE_THRESHOLD, choose_example_frames, plot_ap_vs_time, plot_example_frames, plot_pr_curves,
-                      plot_training_curves)
+from .figures import (
+    SCORE_THRESHOLD,
+    choose_example_frames,
+    plot_ap_vs_time,
+    plot_example_frames,
+    plot_pr_curves,
+    plot_training_curves,
+)
 from .folders import CLASS_NAME, evaluate_folders, read_label_folder
 from .metrics import ap_summary
 

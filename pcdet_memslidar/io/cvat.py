@@ -90,13 +90,15 @@ def natural_key(name: str) -> list:
 
 def _cuboids(path: Path, where: list[str], labels, centers, rotations, sizes) -> tuple:
     """Arrays of M cuboids; DataFormatError naming `where[i]` for a non-finite value or a size <= 0."""
-    centers, sizes = np.array(centers, dtype=np.float64).reshape(-1, 3), np.array(sizes, dtype=np.float64).reshape(-1, 3)
+    centers = np.array(centers, dtype=np.float64).reshape(-1, 3)
+    sizes = np.array(sizes, dtype=np.float64).reshape(-1, 3)
     rotations = np.array(rotations, dtype=np.float64).reshape(-1, 3, 3)
     for i in range(len(centers)):
         if not (np.isfinite(centers[i]).all() and np.isfinite(rotations[i]).all() and np.isfinite(sizes[i]).all()):
             raise DataFormatError(path, f"{where[i]}: NaN or infinite position / rotation / size")
         if (sizes[i] <= 0).any():
-            raise DataFormatError(path, f"{where[i]}: non-positive box size {sizes[i].tolist()}; fix the cuboid in CVAT")
+            raise DataFormatError(path, f"{where[i]}: non-positive box size {sizes[i].tolist()}; fix the cuboid in "
+                                        "CVAT")
     return list(labels), centers, rotations, sizes
 
 
@@ -136,7 +138,8 @@ def read_sly_export(root: str | Path) -> list[CvatFrame]:
             geometry = [[[float(f["geometry"][part][axis]) for axis in "xyz"]
                          for part in ("position", "rotation", "dimensions")] for f in figures]
         except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as error:
-            raise DataFormatError(ann_path, f"not a Sly point-cloud annotation ({type(error).__name__}: {error})") from None
+            raise DataFormatError(ann_path, f"not a Sly point-cloud annotation ({type(error).__name__}: "
+                                            f"{error})") from None
         labels, centers, rotations, sizes = _cuboids(
             ann_path, where, [classes[f["objectKey"]] for f in figures], [g[0] for g in geometry],
             [euler_xyz(*g[1]) for g in geometry], [g[2] for g in geometry])
@@ -187,7 +190,8 @@ def read_kitti_raw_export(root: str | Path, convention: str = "cvat") -> list[Cv
     root = Path(root)
     xml_path = root / "tracklet_labels.xml"
     if not xml_path.is_file():
-        raise DataFormatError(xml_path, "missing: not a Kitti Raw export (export from CVAT with 'Kitti Raw Format 1.0')")
+        raise DataFormatError(xml_path, "missing: not a Kitti Raw export (export from CVAT with 'Kitti Raw Format "
+                                        "1.0')")
     try:
         tracklets = ElementTree.parse(xml_path).getroot().find("tracklets")
     except ElementTree.ParseError as error:
@@ -227,8 +231,9 @@ def read_kitti_raw_export(root: str | Path, convention: str = "cvat") -> list[Cv
         if not cloud.is_file():
             raise DataFormatError(cloud, f"frame-list mismatch: frame {index} is listed but its point cloud is missing")
         items = cuboids[index]
-        labels, centers, rotations, sizes = _cuboids(xml_path, [c[1] for c in items], [c[0] for c in items],
-                                                     [c[2] for c in items], [c[3] for c in items], [c[4] for c in items])
+        labels, centers, rotations, sizes = _cuboids(
+            xml_path, [c[1] for c in items], [c[0] for c in items], [c[2] for c in items], [c[3] for c in items],
+            [c[4] for c in items])
         frames.append(CvatFrame(Path(names[index]).name, cloud, labels, centers, rotations, sizes))
     listed = {frame.cloud_path.resolve() for frame in frames}
     unlisted = [p for p in (root / "velodyne_points" / "data").rglob("*.pcd") if p.resolve() not in listed]

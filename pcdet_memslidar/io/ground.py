@@ -19,7 +19,7 @@ class GroundEstimate:
     """A mount estimated from the ground plane, with the evidence for it."""
 
     mount: Mount
-    plane: tuple[float, float, float, float]  # a, b, c, d of a x + b y + c z + d = 0 in the sensor frame, unit normal up
+    plane: tuple[float, float, float, float]  # a, b, c, d of a x + b y + c z + d = 0, sensor frame, unit normal up
     inliers: int  # points within the RANSAC distance of the plane
     rms: float  # [m] RMS distance of the inliers to the refined plane
 

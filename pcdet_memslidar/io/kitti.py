@@ -23,8 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.geometry.boxes import (boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d,
-                                            normalize_heading)
+from pcdet_memslidar.geometry.boxes import (
+    boxes_camera_to_lidar,
+    boxes_lidar_to_camera,
+    boxes_to_corners_3d,
+    normalize_heading,
+)
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.utils.atomic import write_bytes, write_text
 

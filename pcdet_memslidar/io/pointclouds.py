@@ -118,8 +118,10 @@ def read_pcd_fields(path: Path) -> dict[str, np.ndarray]:
     elif encoding == "binary_compressed":
         records = _decompress_pcd(path, body, dtype, columns, n_points)
     else:
-        raise DataFormatError(path, f"unknown PCD DATA encoding {encoding!r}; expected ascii, binary or binary_compressed")
-    return {name: records[key][:, 0] for key, (name, _, count) in zip(dtype.names, columns) if count == 1 and name != "_"}
+        raise DataFormatError(path, f"unknown PCD DATA encoding {encoding!r}; expected ascii, binary or "
+                                    "binary_compressed")
+    return {name: records[key][:, 0] for key, (name, _, count) in zip(dtype.names, columns)
+            if count == 1 and name != "_"}
 
 
 def _pcd_point_count(path: Path, header: dict[str, list[str]], lines: dict[str, int]) -> int:

@@ -9,8 +9,13 @@ from torch import nn
 from pcdet_memslidar.geometry.boxes import limit_period
 from pcdet_memslidar.models.anchor_generator import generate_anchors
 from pcdet_memslidar.models.box_coder import ResidualCoder
-from pcdet_memslidar.models.losses import (SigmoidFocalClassificationLoss, WeightedCrossEntropyLoss,
-                                           WeightedSmoothL1Loss, add_sin_difference, direction_targets)
+from pcdet_memslidar.models.losses import (
+    SigmoidFocalClassificationLoss,
+    WeightedCrossEntropyLoss,
+    WeightedSmoothL1Loss,
+    add_sin_difference,
+    direction_targets,
+)
 from pcdet_memslidar.models.target_assigner import AxisAlignedTargetAssigner
 
 

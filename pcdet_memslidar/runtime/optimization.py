@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import torch
 
-
 BATCH_NORMS = (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d, torch.nn.BatchNorm3d, torch.nn.SyncBatchNorm)
 
 

@@ -11,8 +11,14 @@ import torch
 
 from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import build_network, load_data_to_device
-from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, list_checkpoints, load_params_from_file,
-                                                load_params_with_optimizer, save_checkpoint, unwrap)
+from pcdet_memslidar.runtime.checkpoint import (
+    checkpoint_state,
+    list_checkpoints,
+    load_params_from_file,
+    load_params_with_optimizer,
+    save_checkpoint,
+    unwrap,
+)
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.utils.progress import progress_bar
 

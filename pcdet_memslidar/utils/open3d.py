@@ -18,7 +18,8 @@ def import_open3d():
 
     library = libusb_package.get_library_path()
     if library is None:
-        raise ImportError("open3d needs libusb-1.0.so.0: `apt-get install libusb-1.0-0` or `pip install libusb-package`")
+        raise ImportError("open3d needs libusb-1.0.so.0: `apt-get install libusb-1.0-0` or "
+                          "`pip install libusb-package`")
     ctypes.CDLL(str(library), mode=ctypes.RTLD_GLOBAL)
     import open3d
     return open3d

@@ -3,9 +3,16 @@ import numpy as np
 import pytest
 import torch
 
-from pcdet_memslidar.geometry.boxes import (boxes_camera_to_lidar, boxes_lidar_to_camera, boxes_to_corners_3d,
-                                            enlarge_box3d, limit_period, normalize_heading, points_in_boxes_mask,
-                                            rotate_points_along_z)
+from pcdet_memslidar.geometry.boxes import (
+    boxes_camera_to_lidar,
+    boxes_lidar_to_camera,
+    boxes_to_corners_3d,
+    enlarge_box3d,
+    limit_period,
+    normalize_heading,
+    points_in_boxes_mask,
+    rotate_points_along_z,
+)
 from pcdet_memslidar.geometry.calibration import Calibration
 
 

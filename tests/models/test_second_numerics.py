@@ -1,19 +1,13 @@
 """Numerical hard cases of the SECOND head: saturated logits, extreme residuals, headings near +-pi."""
 import math
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parent))
-from second_fixtures import SMALL_RANGE, fake_dataset, small_model_cfg  # noqa: E402
-
-from pcdet_memslidar.models import build_network  # noqa: E402
-from pcdet_memslidar.models.box_coder import LOG_SIZE_CLIP, ResidualCoder  # noqa: E402
-from pcdet_memslidar.models.losses import (SigmoidFocalClassificationLoss, add_sin_difference,  # noqa: E402
-                                           direction_targets)
-from pcdet_memslidar.models.target_assigner import nearest_bev_iou  # noqa: E402
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.models.box_coder import LOG_SIZE_CLIP, ResidualCoder
+from pcdet_memslidar.models.losses import SigmoidFocalClassificationLoss, add_sin_difference, direction_targets
+from pcdet_memslidar.models.target_assigner import nearest_bev_iou
 
 ANCHOR = torch.tensor([[5.0, 1.0, 0.865, 0.8, 0.6, 1.73, 0.0]])
 
@@ -59,8 +53,8 @@ def test_sin_difference_ignores_a_flip_by_pi_and_direction_bins_tell_it_apart():
     assert bins.argmax(-1).tolist() == [[0, 0, 1]]  # +-pi: one direction; 0: the opposite bin
 
 
-def test_predicted_heading_near_pi_decodes_to_the_same_direction():
-    model = build_network(small_model_cfg(), 1, fake_dataset(SMALL_RANGE)).eval()
+def test_predicted_heading_near_pi_decodes_to_the_same_direction(small_model_cfg, fake_dataset, small_range):
+    model = build_network(small_model_cfg(), 1, fake_dataset(small_range)).eval()
     head = model.dense_head
     anchors = head.flat_anchors()
     for target in (math.pi - 1e-3, -math.pi + 1e-3):
@@ -83,7 +77,7 @@ def test_nearest_bev_iou_snaps_heading_to_axis():
     assert nearest_bev_iou(box, box[:, [0, 1, 2, 4, 3, 5, 6]]).item() == pytest.approx(1 / 3)
 
 
-def test_post_processing_drops_boxes_no_person_can_have():
+def test_post_processing_drops_boxes_no_person_can_have(small_model_cfg):
     """Saturated size regressions (50 m long, 2 cm thin, NaN, inf) never become detections; a person does.
     Limits are the anchor [0.8, 0.6, 1.73] times SIZE_RATIO_RANGE [0.3, 2.0], bounds included."""
     from pcdet_memslidar.models.post_processing import post_processing, size_limits

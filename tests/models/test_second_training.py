@@ -1,7 +1,5 @@
 """SECOND learns: every parameter gets a gradient, empty frames are handled, a few frames are overfitted."""
 import logging
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -9,29 +7,30 @@ import torch
 from easydict import EasyDict
 from torch.utils.data import DataLoader
 
-sys.path.insert(0, str(Path(__file__).parent))
-from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg, small_optim_cfg  # noqa: E402
-
-from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
-from pcdet_memslidar.models import build_network, load_data_to_device  # noqa: E402
-from pcdet_memslidar.runtime.eval_loop import eval_one_epoch  # noqa: E402
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler  # noqa: E402
-from pcdet_memslidar.runtime.train_loop import train_model  # noqa: E402
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
+from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+from pcdet_memslidar.runtime.train_loop import train_model
 
 
 @pytest.fixture(scope="module")
-def frames():
-    return SyntheticPersonDataset(SMALL_RANGE, PERSON_VOXEL, num_frames=4, seed=3, empty_frames=(2,),
+def frames(small_range, person_voxel):
+    return SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=3, empty_frames=(2,),
                                   no_box_frames=(3,))
 
 
-def _model(dataset, seed=0):
-    torch.manual_seed(seed)
-    return build_network(small_model_cfg(), num_class=1, dataset=dataset)
+@pytest.fixture(scope="module")
+def seeded_model(small_model_cfg):
+    """seeded_model(dataset, seed=0) -> the small SECOND for `dataset`, initialised under `seed`."""
+    def make(dataset, seed=0):
+        torch.manual_seed(seed)
+        return build_network(small_model_cfg(), num_class=1, dataset=dataset)
+    return make
 
 
-def test_every_parameter_gets_a_finite_gradient_with_empty_and_boxless_frames(frames):
-    model = _model(frames).train()
+def test_every_parameter_gets_a_finite_gradient_with_empty_and_boxless_frames(frames, seeded_model):
+    model = seeded_model(frames).train()
     batch = load_data_to_device(frames.collate_batch([frames[i] for i in range(4)]), "cpu")
     assert (batch["voxel_coords"][:, 0] == 2).sum() == 0  # frame 2 has no points
     assert batch["gt_boxes"][3].abs().sum() == 0  # frame 3 has no boxes
@@ -44,8 +43,8 @@ def test_every_parameter_gets_a_finite_gradient_with_empty_and_boxless_frames(fr
         assert parameter.grad.abs().sum() > 0, name
 
 
-def test_inference_on_empty_and_boxless_frames(frames):
-    model = _model(frames).eval()
+def test_inference_on_empty_and_boxless_frames(frames, seeded_model):
+    model = seeded_model(frames).eval()
     with torch.no_grad():
         preds, recall = model(load_data_to_device(frames.collate_batch([frames[i] for i in range(4)]), "cpu"))
         alone, _ = model(load_data_to_device(frames.collate_batch([frames[2]]), "cpu"))  # no voxel in the batch
@@ -68,9 +67,10 @@ def _recalibrate_batch_norm(model, loader):
             model(load_data_to_device(batch, "cpu"))
 
 
-def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path):
-    dataset = SyntheticPersonDataset(SMALL_RANGE, PERSON_VOXEL, num_frames=4, seed=0)
-    model = _model(dataset)
+def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path, seeded_model, small_model_cfg, small_optim_cfg,
+                                                     small_range, person_voxel):
+    dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)
+    model = seeded_model(dataset)
     optim_cfg = small_optim_cfg()
     loader = DataLoader(dataset, batch_size=4, shuffle=False, collate_fn=dataset.collate_batch)
     epochs = 30

@@ -1,17 +1,11 @@
 """spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, and the
 CPU patch is idempotent."""
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 from torch.nn import functional as F
 
-sys.path.insert(0, str(Path(__file__).parent))
-from second_fixtures import second_model_cfg  # noqa: E402
-
-from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x  # noqa: E402
-from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread  # noqa: E402
+from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
+from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
 
 GRID = [64, 48, 40]  # x, y, z cells
 
@@ -53,7 +47,7 @@ def two_threads():
     torch.set_num_threads(threads)
 
 
-def test_sparse_backbone_equals_dense_conv3d_at_two_threads(two_threads):
+def test_sparse_backbone_equals_dense_conv3d_at_two_threads(two_threads, second_model_cfg):
     generator = torch.Generator().manual_seed(0)
     backbone = VoxelBackBone8x(second_model_cfg().BACKBONE_3D, input_channels=4, grid_size=GRID)
     with torch.no_grad():

@@ -1,29 +1,33 @@
 """Run by test_ddp.py under torchrun: a few DDP training steps on synthetic frames, then every rank saves its
-parameters and the merged order of an evaluation pass."""
+parameters and the merged order of an evaluation pass.
+
+    python -m torch.distributed.run ... ddp_worker.py SETUP_JSON OUT_DIR
+
+SETUP_JSON holds the test's fixtures: {"point_cloud_range", "voxel_size", "model_cfg", "optim_cfg"}."""
+import json
 import sys
 from pathlib import Path
 
 import torch
+from easydict import EasyDict
 from torch.utils.data import DataLoader, DistributedSampler
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
-from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg, small_optim_cfg  # noqa: E402
-
-from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
-from pcdet_memslidar.models import build_network  # noqa: E402
-from pcdet_memslidar.runtime.common import set_random_seed, set_torch_threads  # noqa: E402
-from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size, merge_results_dist  # noqa: E402
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler  # noqa: E402
-from pcdet_memslidar.runtime.train_loop import train_model  # noqa: E402
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.runtime.common import set_random_seed, set_torch_threads
+from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size, merge_results_dist
+from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+from pcdet_memslidar.runtime.train_loop import train_model
 
 
-def main(out_dir: Path) -> None:
+def main(setup_file: Path, out_dir: Path) -> None:
+    setup = json.loads(setup_file.read_text())
     world_size, rank = init_dist_pytorch()
     threads = set_torch_threads(local_world_size())
     set_random_seed(666 + rank)  # different initial weights per rank: DDP must broadcast rank 0's
-    dataset = SyntheticPersonDataset(SMALL_RANGE, PERSON_VOXEL, num_frames=4, seed=11)
-    model = build_network(small_model_cfg(), num_class=1, dataset=dataset)
-    optim_cfg = small_optim_cfg()
+    dataset = SyntheticPersonDataset(setup["point_cloud_range"], setup["voxel_size"], num_frames=4, seed=11)
+    model = build_network(EasyDict(setup["model_cfg"]), num_class=1, dataset=dataset)
+    optim_cfg = EasyDict(setup["optim_cfg"])
     sampler = DistributedSampler(dataset, num_replicas=world_size, rank=rank, shuffle=True, seed=0)
     loader = DataLoader(dataset, batch_size=1, sampler=sampler, collate_fn=dataset.collate_batch)
     ddp = torch.nn.parallel.DistributedDataParallel(model)
@@ -40,4 +44,4 @@ def main(out_dir: Path) -> None:
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]))
+    main(Path(sys.argv[1]), Path(sys.argv[2]))

@@ -2,56 +2,55 @@
 checkpoint at all."""
 import argparse
 import logging
-import sys
-from pathlib import Path
 
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
-from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg  # noqa: E402
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.runtime.checkpoint import checkpoint_state, load_params_from_file, read_checkpoint, save_checkpoint
 
-from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
-from pcdet_memslidar.errors import DataFormatError  # noqa: E402
-from pcdet_memslidar.models import build_network  # noqa: E402
-from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, load_params_from_file,  # noqa: E402
-                                                read_checkpoint, save_checkpoint)
-
-SHIFTED_RANGE = [2.56, -5.12, -0.5, 12.8, 5.12, 3.5]  # the same 128 x 128 x 40 cells as SMALL_RANGE, elsewhere
+SHIFTED_RANGE = [2.56, -5.12, -0.5, 12.8, 5.12, 3.5]  # the same 128 x 128 x 40 cells as small_range, elsewhere
 
 
-def _model(point_cloud_range=SMALL_RANGE, profile=None):
-    model = build_network(small_model_cfg(), 1, SyntheticPersonDataset(point_cloud_range, PERSON_VOXEL, num_frames=1))
-    model.profile = profile
-    return model
+@pytest.fixture
+def model_on_grid(small_model_cfg, small_range, person_voxel):
+    """model_on_grid(point_cloud_range=small_range, profile=None) -> the small SECOND for that grid and profile."""
+    def make(point_cloud_range=small_range, profile=None):
+        model = build_network(small_model_cfg(), 1,
+                              SyntheticPersonDataset(point_cloud_range, person_voxel, num_frames=1))
+        model.profile = profile
+        return model
+    return make
 
 
-def test_a_checkpoint_of_another_grid_is_refused_naming_both_grids(tmp_path, caplog):
-    path = save_checkpoint(checkpoint_state(_model(profile="quick")), tmp_path / "quick.pth")
+def test_a_checkpoint_of_another_grid_is_refused_naming_both_grids(tmp_path, caplog, model_on_grid, small_range):
+    path = save_checkpoint(checkpoint_state(model_on_grid(profile="quick")), tmp_path / "quick.pth")
     expected = (r"quick.pth: was trained on profile 'quick', POINT_CLOUD_RANGE \[0.0, -5.12, -0.5, 10.24, 5.12, 3.5\], "
                 r"VOXEL_SIZE \[0.08, 0.08, 0.1\], but this config has profile 'paper', POINT_CLOUD_RANGE \[2.56, "
                 r"-5.12, -0.5, 12.8, 5.12, 3.5\], VOXEL_SIZE \[0.08, 0.08, 0.1\]: its weights do not fit these voxels "
                 r"and anchors. Use the config it was trained with \(--set PROFILE quick\)")
     with pytest.raises(DataFormatError, match=expected):
-        load_params_from_file(_model(SHIFTED_RANGE, profile="paper"), path, strict=True)
-    load_params_from_file(_model(SMALL_RANGE, profile="paper"), path, strict=True)  # same grid: fine
+        load_params_from_file(model_on_grid(SHIFTED_RANGE, profile="paper"), path, strict=True)
+    load_params_from_file(model_on_grid(small_range, profile="paper"), path, strict=True)  # same grid: fine
     with caplog.at_level(logging.WARNING):  # --pretrained_model takes what fits, with a warning
-        load_params_from_file(_model(SHIFTED_RANGE), path, logging.getLogger("pretrained"))
+        load_params_from_file(model_on_grid(SHIFTED_RANGE), path, logging.getLogger("pretrained"))
     assert "was trained on profile 'quick'" in caplog.text
 
 
-def test_nan_weights_are_refused_naming_the_tensor(tmp_path):
-    model = _model()
+def test_nan_weights_are_refused_naming_the_tensor(tmp_path, model_on_grid):
+    model = model_on_grid()
     with torch.no_grad():
         model.backbone_2d.blocks[0][1].weight[0, 0, 0, 0] = float("nan")
     path = save_checkpoint(checkpoint_state(model), tmp_path / "diverged.pth")
     with pytest.raises(DataFormatError, match=r"diverged.pth: weight 'backbone_2d.blocks.0.1.weight' \(32, 256, 3, 3\) "
                                               r"has NaN or infinite values: the training diverged"):
-        load_params_from_file(_model(), path, strict=True)
+        load_params_from_file(model_on_grid(), path, strict=True)
 
 
-def test_a_bit_flip_in_the_weights_is_detected(tmp_path):
-    model = _model()
+def test_a_bit_flip_in_the_weights_is_detected(tmp_path, model_on_grid):
+    model = model_on_grid()
     path = save_checkpoint(checkpoint_state(model), tmp_path / "flipped.pth")
     data = bytearray(path.read_bytes())
     weight = model.backbone_2d.blocks[0][1].weight.detach().numpy().tobytes()
@@ -61,7 +60,7 @@ def test_a_bit_flip_in_the_weights_is_detected(tmp_path):
     path.write_bytes(bytes(data))
     with pytest.raises(DataFormatError, match="flipped.pth: 'model_state' differs from the sha256 stored when it was "
                                               "saved: the file was damaged since"):
-        load_params_from_file(_model(), path, strict=True)
+        load_params_from_file(model_on_grid(), path, strict=True)
 
 
 def _saved(tmp_path, name, obj, **kwargs):
@@ -70,8 +69,8 @@ def _saved(tmp_path, name, obj, **kwargs):
     return path
 
 
-def test_each_unreadable_checkpoint_gets_its_own_reason(tmp_path):
-    good = save_checkpoint(checkpoint_state(_model()), tmp_path / "good.pth").read_bytes()
+def test_each_unreadable_checkpoint_gets_its_own_reason(tmp_path, model_on_grid):
+    good = save_checkpoint(checkpoint_state(model_on_grid()), tmp_path / "good.pth").read_bytes()
     legacy = _saved(tmp_path, "legacy.pth", {"model_state": {"w": torch.zeros(1000)}},
                     _use_new_zipfile_serialization=False).read_bytes()
     weights = {"w": torch.zeros(3)}

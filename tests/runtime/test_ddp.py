@@ -1,4 +1,5 @@
 """Two-process DDP (gloo) under torchrun: both ranks end with identical weights, each saw its own shard."""
+import json
 import os
 import socket
 import subprocess
@@ -16,10 +17,14 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_two_process_gloo_training_keeps_ranks_identical(tmp_path):
+def test_two_process_gloo_training_keeps_ranks_identical(tmp_path, small_model_cfg, small_optim_cfg, small_range,
+                                                          person_voxel):
+    setup = tmp_path / "setup.json"
+    setup.write_text(json.dumps({"point_cloud_range": small_range, "voxel_size": person_voxel,
+                                 "model_cfg": small_model_cfg(), "optim_cfg": small_optim_cfg()}))
     env = {**os.environ, "OMP_NUM_THREADS": "1", "CUDA_VISIBLE_DEVICES": ""}
     command = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2", "--master_addr", "127.0.0.1",
-               "--master_port", str(_free_port()), str(WORKER), str(tmp_path)]
+               "--master_port", str(_free_port()), str(WORKER), str(setup), str(tmp_path)]
     done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=170)
     assert done.returncode == 0, done.stderr[-3000:]
     rank0, rank1 = (torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in (0, 1))

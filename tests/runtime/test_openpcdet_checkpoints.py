@@ -10,8 +10,13 @@ from torch.utils.data import DataLoader
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.models import build_network
-from pcdet_memslidar.runtime.checkpoint import (checkpoint_state, load_params_from_file, load_params_with_optimizer,
-                                                read_checkpoint, save_checkpoint)
+from pcdet_memslidar.runtime.checkpoint import (
+    checkpoint_state,
+    load_params_from_file,
+    load_params_with_optimizer,
+    read_checkpoint,
+    save_checkpoint,
+)
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.runtime.train_loop import train_one_step
 

@@ -1,38 +1,32 @@
 """tools/train.py and tools/test.py end to end on synthetic frames: output layout, checkpoints, resume, AP line."""
 import struct
-import sys
-from pathlib import Path
 
 import pytest
 import yaml
 from tensorboardX.proto import event_pb2
 from torch.utils.data import DataLoader
 
-sys.path.insert(0, str(Path(__file__).parents[1] / "models"))
-from second_fixtures import PERSON_VOXEL, SMALL_RANGE, small_model_cfg  # noqa: E402
-
-from pcdet_memslidar import cli  # noqa: E402
-from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset  # noqa: E402
-from pcdet_memslidar.models import build_network  # noqa: E402
-from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint  # noqa: E402
-from pcdet_memslidar.runtime import predict as predict_module  # noqa: E402
-from pcdet_memslidar.runtime import train as train_module  # noqa: E402
-
-
-def _synthetic_dataloader(dataset_cfg, class_names, batch_size, dist, workers=4, training=True, **kwargs):
-    dataset = SyntheticPersonDataset(SMALL_RANGE, PERSON_VOXEL, num_frames=4, seed=0 if training else 50)
-    return dataset, DataLoader(dataset, batch_size=batch_size, collate_fn=dataset.collate_batch), None
+from pcdet_memslidar import cli
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.runtime import predict as predict_module
+from pcdet_memslidar.runtime import train as train_module
+from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 
 
 @pytest.fixture
-def experiment(tmp_path, monkeypatch):
-    monkeypatch.setattr(train_module, "build_dataloader", _synthetic_dataloader)
-    monkeypatch.setattr(predict_module, "build_dataloader", _synthetic_dataloader)
+def experiment(tmp_path, monkeypatch, small_model_cfg, small_range, person_voxel):
+    def synthetic_dataloader(dataset_cfg, class_names, batch_size, dist, workers=4, training=True, **kwargs):
+        dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0 if training else 50)
+        return dataset, DataLoader(dataset, batch_size=batch_size, collate_fn=dataset.collate_batch), None
+
+    monkeypatch.setattr(train_module, "build_dataloader", synthetic_dataloader)
+    monkeypatch.setattr(predict_module, "build_dataloader", synthetic_dataloader)
     cfg_dir = tmp_path / "cfgs" / "people"
     cfg_dir.mkdir(parents=True)
     config = {"CLASS_NAMES": ["Pedestrian"], "DATA_CONFIG": {
-                  "DATA_SPLIT": {"train": "train", "test": "val"}, "POINT_CLOUD_RANGE": list(SMALL_RANGE),
-                  "DATA_PROCESSOR": [{"NAME": "transform_points_to_voxels", "VOXEL_SIZE": list(PERSON_VOXEL)}]},
+                  "DATA_SPLIT": {"train": "train", "test": "val"}, "POINT_CLOUD_RANGE": list(small_range),
+                  "DATA_PROCESSOR": [{"NAME": "transform_points_to_voxels", "VOXEL_SIZE": list(person_voxel)}]},
               "MODEL": small_model_cfg(),
               "OPTIMIZATION": {"BATCH_SIZE_PER_GPU": 2, "NUM_EPOCHS": 2, "OPTIMIZER": "adam_onecycle", "LR": 0.003,
                                "WEIGHT_DECAY": 0.01, "MOMS": [0.95, 0.85], "PCT_START": 0.4, "DIV_FACTOR": 10,
@@ -92,9 +86,9 @@ def test_train_then_test_then_resume(experiment, capsys):
     assert (run_dir / "ckpt" / "checkpoint_epoch_3.pth").is_file()
 
 
-def test_test_refuses_a_checkpoint_trained_on_another_grid(experiment, capsys):
+def test_test_refuses_a_checkpoint_trained_on_another_grid(experiment, capsys, small_model_cfg, person_voxel):
     cfg_file, output = experiment
-    other_grid = SyntheticPersonDataset([2.56, -5.12, -0.5, 12.8, 5.12, 3.5], PERSON_VOXEL, num_frames=1)
+    other_grid = SyntheticPersonDataset([2.56, -5.12, -0.5, 12.8, 5.12, 3.5], person_voxel, num_frames=1)
     model = build_network(small_model_cfg(), 1, other_grid)
     model.profile = "quick"
     ckpt = save_checkpoint(checkpoint_state(model, epoch=1), output / "quick_grid.pth")

@@ -2,8 +2,14 @@
 import numpy as np
 import pytest
 
-from pcdet_memslidar.sim.motion import (BEHAVIOURS, SAMPLE_DT, WALK_SPEED_FULL, TrajectoryStack,
-                                        make_trajectories, make_trajectory)
+from pcdet_memslidar.sim.motion import (
+    BEHAVIOURS,
+    SAMPLE_DT,
+    WALK_SPEED_FULL,
+    TrajectoryStack,
+    make_trajectories,
+    make_trajectory,
+)
 
 
 def test_stacked_states_equal_per_trajectory_linear_interpolation():

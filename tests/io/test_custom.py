@@ -67,7 +67,8 @@ def test_export_custom_command(tmp_path, capsys):
 
 def _tree(root):
     """{relative path: sha256} of every file under `root`."""
-    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest() for p in root.rglob("*") if p.is_file()}
+    return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in root.rglob("*") if p.is_file()}
 
 
 def _export_error(capsys, *args) -> str:

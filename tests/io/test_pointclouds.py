@@ -47,7 +47,8 @@ def test_open3d_files_read_back_with_intensity_time_and_counted_invalid_points(t
 def test_hand_written_pcd_with_uint_intensity_and_padding(tmp_path):
     (tmp_path / "a.pcd").write_text(
         "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z _ intensity\nSIZE 4 4 4 1 2\nTYPE F F F U U\nCOUNT 1 1 1 1 1\n"
-        "WIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n1.5 -2 3 0 300\nnan nan nan 0 0\n0 0 0 0 7\n")
+        "WIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n"
+        "1.5 -2 3 0 300\nnan nan nan 0 0\n0 0 0 0 7\n")
     loaded = read_point_cloud(tmp_path / "a.pcd")
     np.testing.assert_array_equal(loaded.points, [[1.5, -2.0, 3.0, 300.0]])
     assert loaded.dropped == 2 and loaded.time is None
@@ -105,7 +106,8 @@ def test_npy_and_bin(tmp_path):
     ("POINTS -1", r"p\.pcd:2: PCD header: POINTS '-1' must be one integer >= 0"),
     ("POINTS 3\nCOUNT 1 1 -1", r"p\.pcd:3: PCD header: COUNT 1 1 -1 must be >= 1")])
 def test_pcd_point_counts_must_agree_and_be_non_negative(tmp_path, counts, message):
-    (tmp_path / "p.pcd").write_text(f"FIELDS x y z\n{counts}\nSIZE 4 4 4\nTYPE F F F\nDATA ascii\n1 2 3\n4 5 6\n7 8 9\n")
+    (tmp_path / "p.pcd").write_text(f"FIELDS x y z\n{counts}\nSIZE 4 4 4\nTYPE F F F\nDATA ascii\n"
+                                    "1 2 3\n4 5 6\n7 8 9\n")
     with pytest.raises(DataFormatError, match=message):
         read_point_cloud(tmp_path / "p.pcd")
 

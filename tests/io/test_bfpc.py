@@ -82,3 +82,15 @@ def test_wrong_message_type(tmp_path):
 def test_missing_file(tmp_path):
     with pytest.raises(DataFormatError, match="file not found"):
         read_bfpc(tmp_path / "none.bfpc")
+
+
+def test_gzip_crc_failure_is_reported_as_corrupt_not_as_not_gzip(tmp_path):
+    data = bytearray(gzip.compress(b"\x00" * 100))
+    data[-8] ^= 0xFF  # the CRC-32 in the gzip trailer
+    (tmp_path / "crc.bfpc").write_bytes(bytes(data))
+    with pytest.raises(DataFormatError, match=r"crc\.bfpc: corrupt or truncated gzip data \(CRC check failed"):
+        read_bfpc(tmp_path / "crc.bfpc")
+    (tmp_path / "plain.bfpc").write_bytes(b"\x00" * 100)
+    with pytest.raises(DataFormatError, match=r"plain\.bfpc: not a gzip stream \(it does not start with the gzip "
+                                              r"bytes 1f 8b\)"):
+        read_bfpc(tmp_path / "plain.bfpc")

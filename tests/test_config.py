@@ -3,11 +3,18 @@ from pathlib import Path
 
 import pytest
 
-from pcdet_memslidar.config import (apply_profile, cfg_from_list, cfg_from_yaml_file, experiment_group,
-                                    load_config, merge_new_config, resolve_path)
+from pcdet_memslidar.config import (
+    apply_profile,
+    cfg_from_list,
+    cfg_from_yaml_file,
+    experiment_group,
+    load_config,
+    merge_new_config,
+    resolve_path,
+)
 from pcdet_memslidar.errors import ConfigError
 
-CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+CFGS = Path(__file__).resolve().parents[1] / "cfgs"
 
 
 def _write(path: Path, text: str) -> Path:
@@ -242,3 +249,11 @@ def test_set_key_without_a_value_is_an_error(project):
                r"'OPTIMIZATION\.LR' has no value; add one \(--set OPTIMIZATION\.LR VALUE\) or remove it")
     with pytest.raises(ConfigError, match=message):
         load_config(path, ["PROFILE", "smoke", "OPTIMIZATION.LR"])
+
+
+def test_profile_from_set_and_explicit_set_wins():
+    cfg = load_config(CFGS / "m3.yaml", ["OPTIMIZATION.NUM_EPOCHS", "3", "PROFILE", "quick"])
+    assert (cfg.PROFILE, cfg.DATA_CONFIG.MIX.TOTAL, cfg.OPTIMIZATION.NUM_EPOCHS) == ("quick", 400, 3)
+    paper = load_config(CFGS / "m3.yaml")
+    assert (paper.PROFILE, paper.DATA_CONFIG.MIX.TOTAL, paper.OPTIMIZATION.NUM_EPOCHS, paper.OPTIMIZATION.LR) == \
+        ("paper", 2100, 120, 1e-3)

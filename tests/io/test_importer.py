@@ -1,15 +1,91 @@
-"""`memslidar import` never replaces its input or what it did not write; file-system errors and bad arguments are
-one clear line; leftovers of a killed import are removed by the next one."""
+"""`memslidar import` on the real Cube 1 recording and on bad input (nothing half-written); it never replaces its
+input or what it did not write; file-system errors and bad arguments are one clear line; leftovers of a killed
+import are removed by the next one."""
+import gzip
+import json
 import subprocess
 
 import numpy as np
 import pytest
 
 from pcdet_memslidar import cli
+from pcdet_memslidar.config import SCHEMA_FILE, load_config
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.importer import import_dataset
-from pcdet_memslidar.io.layout import KittiLayout
+from pcdet_memslidar.io.layout import KittiLayout, read_frame
+
+PULSES_PER_FRAME = 12_312
+
+
+@pytest.fixture(scope="module")
+def recording(real_recording):
+    return read_bfpc(real_recording)
+
+
+def test_real_recording_imports_with_a_given_mount(tmp_path, real_recording, recording):
+    mount = Mount(2.0, 10.0)
+    report = import_dataset("bfpc", real_recording, tmp_path / "real", mount=mount)
+    assert report["frames"] == 10 and report["frames_without_labels"] == 10 and report["boxes"] == 0
+    assert (report["train_frames"], report["val_frames"]) == (7, 3)
+    assert report["point_cloud_range"] == load_config(SCHEMA_FILE).DATA_CONFIG.POINT_CLOUD_RANGE  # the detector's
+    for entry in report["per_frame"]:
+        assert entry["points"] + entry["dropped_invalid_points"] == PULSES_PER_FRAME
+    assert report["dropped_invalid_points"] == sum((~f.returned).sum() for f in recording.frames)
+    frame = read_frame(KittiLayout(tmp_path / "real"), "000003")
+    expected = mount.sensor_to_ground(recording.frames[3].points[:, :3])
+    np.testing.assert_allclose(frame["points"][:, :3], expected, atol=1e-5)
+    np.testing.assert_array_equal(frame["points"][:, 3], recording.frames[3].points[:, 3])
+    assert len(frame["metadata"]["point_time"]) == len(frame["points"]) and frame["metadata"]["source"].endswith("#3")
+    assert 0.0 <= min(frame["metadata"]["point_time"]) and max(frame["metadata"]["point_time"]) < 0.125
+
+
+def test_cli_estimates_the_ground_and_refuses_to_overwrite(tmp_path, scan_room, capsys):
+    mount = Mount(4.0, 16.0, roll_deg=0.5)
+    (tmp_path / "clouds").mkdir()
+    for seed in range(3):
+        np.save(tmp_path / "clouds" / f"frame_{seed}.npy", scan_room(mount, seed))
+    out = tmp_path / "real"
+    args = ["import", "--format", "npy", "--src", str(tmp_path / "clouds"), "--out", str(out), "--estimate-ground"]
+    assert cli.main(args) == 0
+    estimate = json.loads((out / "import_report.json").read_text())["mount"]
+    assert estimate["source"].startswith("estimated") and "ground plane" in capsys.readouterr().out
+    assert abs(estimate["height"] - 4.0) < 0.02 and abs(estimate["tilt_deg"] - 16.0) < 0.2
+    assert abs(estimate["roll_deg"] - 0.5) < 0.2
+    floor = read_frame(KittiLayout(out), "000001")["points"]
+    floor = floor[(floor[:, 0] > 9.0) & (floor[:, 0] < 11.5)]
+    assert abs(np.median(floor[:, 2])) < 0.01
+    assert cli.main(args) == 2 and "--overwrite" in capsys.readouterr().err
+
+
+def test_corrupt_gzip_and_truncated_protobuf_write_nothing(tmp_path, real_recording, capsys):
+    data = real_recording.read_bytes()
+    corrupt = tmp_path / "corrupt.bfpc"
+    corrupt.write_bytes(data[:5000] + bytes(b ^ 0x5A for b in data[5000:9000]) + data[9000:])
+    truncated = tmp_path / "truncated.bfpc"
+    truncated.write_bytes(gzip.compress(gzip.decompress(data)[:1_000_000]))
+    for source, message in ((corrupt, "gzip"), (truncated, "truncated")):
+        out = tmp_path / f"out_{source.stem}"
+        assert cli.main(["import", "--format", "bfpc", "--src", str(source), "--out", str(out)]) == 1
+        error = capsys.readouterr().err
+        assert str(source) in error and message in error and not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temporary folder left behind
+
+
+def test_failed_reimport_keeps_the_previous_dataset(tmp_path):
+    clouds = tmp_path / "clouds"
+    clouds.mkdir()
+    for i in range(3):
+        np.save(clouds / f"{i}.npy", np.array([[5.0, 0.0, -2.0, 10.0 * i]]))
+    out = tmp_path / "real"
+    assert import_dataset("npy", clouds, out, mount=Mount(2.0, 0.0))["frames"] == 3
+    np.save(clouds / "3.npy", np.zeros((2, 7)))  # a bad frame after three good ones
+    with pytest.raises(ValueError, match=r"3\.npy"):
+        import_dataset("npy", clouds, out, mount=Mount(2.0, 0.0))
+    assert KittiLayout(out).frame_ids() == ["000000", "000001", "000002"]
+    np.testing.assert_allclose(read_frame(KittiLayout(out), "000002")["points"], [[5.0, 0.0, 0.0, 20.0]])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds", "real"]
 
 
 @pytest.fixture

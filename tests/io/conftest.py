@@ -1,4 +1,4 @@
-"""Fixtures of the importer tests: frames scanned at a known mount."""
+"""Fixtures of the io tests (importer, ground): frames scanned at a known mount."""
 import numpy as np
 import pytest
 

@@ -6,7 +6,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+CFGS = Path(__file__).resolve().parents[1] / "cfgs"
 
 FAKE_PCDET = {
     "pcdet/__init__.py": "",

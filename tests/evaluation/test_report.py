@@ -1,19 +1,17 @@
-"""Report writer and figures on hand-made results (no training): exact numbers, complete tables, valid PNGs."""
+"""Report writer on hand-made results (no training): exact numbers, complete tables."""
 import json
 
 import numpy as np
 import pytest
 
-from pcdet_memslidar.evaluation.figures import (choose_example_frames, close_people, plot_ap_vs_time,
-                                                plot_example_frames, plot_frame, plot_pr_curves)
-from pcdet_memslidar.evaluation.report import (gain_over_reference, order_statement, render_report, summarise_runs,
-                                               table2, write_report)
-
-PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
-
-
-def person(x, y, heading=0.0):
-    return [x, y, 0.88, 0.8, 0.6, 1.76, heading]
+from pcdet_memslidar.evaluation.report import (
+    gain_over_reference,
+    order_statement,
+    render_report,
+    summarise_runs,
+    table2,
+    write_report,
+)
 
 
 def make_results(ap: dict, seeds=(0,), std=0.0):
@@ -97,44 +95,3 @@ def test_table2_percentages():
     lines = table2(make_results({"M1": 0.1, "M2": 0.1, "M3": 0.1, "M4": 0.1}))
     assert lines[2].startswith("| M1 | 0 / 100 | 0 / 20 |")
     assert lines[4].startswith("| M3 | 50 / 50 | 10 / 10 |")
-
-
-def test_close_people_counts():
-    assert close_people(np.array([person(10, 0)])) == 0
-    assert close_people(np.array([person(10, 0), person(10, 1.0), person(20, 5)])) == 2
-
-
-def test_example_frames_chosen_by_their_documented_rule():
-    easy = np.array([person(12, 0)])
-    deviating = np.array([person(15, 3), person(22, -4)])
-    crowded = np.array([person(18, 0), person(18, 0.9), person(18.9, 0.4), person(17.2, 0.5)])
-    gt = [deviating, easy, crowded]
-    exact = [{"boxes_lidar": boxes, "score": np.ones(len(boxes))} for boxes in gt]
-    shifted = [dict(exact[0], boxes_lidar=deviating + [0.35, 0, 0, 0, 0, 0, 0]), exact[1], exact[2]]
-    chosen = choose_example_frames(gt, {"M1": shifted, "M2": shifted, "M3": exact, "M4": exact})
-    assert [(e.role, e.index) for e in chosen] == [("easy", 1), ("deviating", 0), ("crowded", 2)]
-    assert "4 of 4 people" in chosen[2].why and "4 (model, person) pairs" in chosen[1].why
-    # predictions below the score threshold count as missing
-    faint = [dict(anno, score=np.full(len(anno["score"]), 0.05)) for anno in exact]
-    assert [e.index for e in choose_example_frames(gt, {"M1": faint})] == [1, 0, 2]
-
-
-def test_figures_are_written(tmp_path):
-    rng = np.random.default_rng(0)
-    boxes = np.array([person(12, 0), person(14, 1)])
-    points = np.c_[rng.uniform(5, 20, (500, 2)), rng.uniform(0, 2, 500), rng.uniform(0, 1, 500)]
-    annos = [{"boxes_lidar": boxes + 0.1, "score": np.array([0.9, 0.2])}]
-    curve = {"recall": np.array([0.5, 1.0]), "precision": np.array([1.0, 0.5])}
-    paths = [
-        plot_example_frames(tmp_path / "ex.png", [{"points": points, "gt_boxes": boxes, "title": "t"}],
-                            {"M1": annos, "M2": annos}),
-        plot_pr_curves(tmp_path / "pr.png", {"M1": {"3D": curve, "BEV": curve}}, {"M1": {"3D": 0.7, "BEV": None}}),
-        plot_ap_vs_time(tmp_path / "t.png", [{"name": "M1", "ms_per_frame": 100.0, "ap": 0.5, "group": "run"},
-                                             {"name": "x", "ms_per_frame": 50.0, "ap": None, "group": "bench"}]),
-        plot_frame(tmp_path / "f.png", points, boxes, "frame", predictions=boxes + 0.1),
-        plot_frame(tmp_path / "empty.png", np.zeros((0, 4)), np.zeros((0, 7)), "no points, no people"),
-    ]
-    for path in paths:
-        assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
-    # no temporary files left
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.png", "ex.png", "f.png", "pr.png", "t.png"]

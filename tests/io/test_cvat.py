@@ -144,7 +144,8 @@ def test_import_of_a_zipped_sly_export_writes_ground_frame_labels(tmp_path):
 
     report = import_dataset("cvat-sly", tmp_path / "export.zip", tmp_path / "real", mount=MOUNT)
     assert (report["frames"], report["boxes"], report["boxes_under_min_points"]) == (2, 2, 1)
-    assert (report["frames_without_labels"], report["dropped_invalid_points"], report["points_out_of_range"]) == (1, 2, 1)
+    counts = report["frames_without_labels"], report["dropped_invalid_points"], report["points_out_of_range"]
+    assert counts == (1, 2, 1)
     frame = read_frame(KittiLayout(tmp_path / "real"), "000000")
     np.testing.assert_allclose(frame["gt_boxes"][0], ROTATED_EXPECTED, atol=2e-4)
     np.testing.assert_allclose(frame["gt_boxes"][1], [6.0, -2.0, 0.9, 0.5, 0.5, 1.8, 0.0], atol=2e-4)

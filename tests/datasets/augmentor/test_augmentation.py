@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 from easydict import EasyDict
 
-from pcdet_memslidar.datasets.augmentor import DataAugmentor, DataBaseSampler, GtDatabase
-from pcdet_memslidar.datasets.augmentor import augmentor_utils
+from pcdet_memslidar.datasets.augmentor import DataAugmentor, DataBaseSampler, GtDatabase, augmentor_utils
 from pcdet_memslidar.datasets.infos import DBINFO_FILE
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
