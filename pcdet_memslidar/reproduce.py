@@ -204,7 +204,8 @@ def _environment(**variables: str):
 
 def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
     """Run every job (in order, `parallel` at once in worker processes, or in this process when 1); one progress bar
-    counts the epochs of all of them. Returns their run entries in job order."""
+    (or, off a terminal, one log line per epoch) counts the epochs of all of them. Returns their run entries in job
+    order."""
     total = sum(int(job["cfg"].OPTIMIZATION.NUM_EPOCHS) for job in jobs)
     if parallel <= 1:
         return [run_model(job) for job in jobs]
@@ -216,13 +217,16 @@ def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
         with _environment(TQDM_DISABLE="1"):  # workers start on submit; their bars stay off (this one counts)
             futures = {pool.submit(_worker_run, job, queue): index for index, job in enumerate(jobs)}
         runs: list[dict | None] = [None] * len(jobs)
-        pending = set(futures)
+        pending, epochs_done = set(futures), 0
         while pending:
             done = {future for future in pending if future.done()}
             while not queue.empty():
                 model, seed, epoch = queue.get()
+                epochs_done += 1
                 bar.set_postfix_str(f"{model} seed {seed} epoch {epoch}")
                 bar.update()
+                if bar.disable:  # no bar (a log file or a pipe): one line per epoch instead
+                    logger.info(f"{model} seed {seed}: epoch {epoch} done ({epochs_done}/{total} epochs of all models)")
             for future in done:
                 job = jobs[futures[future]]
                 runs[futures[future]] = future.result()  # a worker's exception is raised here
