@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import pickle
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -21,13 +22,15 @@ import numpy as np
 from ..errors import DataFormatError
 from ..geometry.boxes import points_in_boxes_mask
 from ..io.layout import KittiLayout, read_frame
-from ..utils.atomic import atomic_dir, write_bytes
+from ..utils.atomic import OWNER_FILE, atomic_dir, check_output_folder, mark_output, write_bytes
 from ..utils.progress import progress_bar
 from .mixing import Source, make_frames_command
 
 INFO_FILE = "memslidar_infos.pkl"
 DBINFO_FILE = "memslidar_dbinfos.pkl"
 DATABASE_DIR = "gt_database"
+DATABASE_FILE = re.compile(r".+_.+_\d+\.bin")  # <frame id>_<class>_<object index>.bin, one object's points
+COMMAND = "memslidar create-infos"  # the writer named in the gt database's marker (utils.atomic.atomic_dir)
 CREATE_COMMAND = "`memslidar create-infos --cfg <the config you train or test with>`"
 REBUILD_COMMAND = "`memslidar create-infos --cfg <the config you train or test with> --force`"
 
@@ -72,6 +75,14 @@ def _read_infos(info_path: Path, source: Source) -> dict:
     return _read_pickle(info_path, source, "info file", ("fingerprint", "infos"))
 
 
+def _adopt_unmarked_database(database: Path) -> None:
+    """Mark a gt database written before folders carried their writer's marker (utils.atomic.OWNER_FILE) as
+    create-infos' own, so that a rebuild may replace it: only when it holds nothing but create-infos' object files."""
+    if (database.is_dir() and not (database / OWNER_FILE).exists()
+            and all(entry.is_file() and DATABASE_FILE.fullmatch(entry.name) for entry in database.iterdir())):
+        mark_output(database, COMMAND)
+
+
 def create_domain_infos(source: Source, force: bool = False) -> list[dict]:
     """Write (or keep, when up to date and not `force`) the infos and gt database of `source`'s folder; an info
     file that cannot be read is rebuilt."""
@@ -86,9 +97,11 @@ def create_domain_infos(source: Source, force: bool = False) -> list[dict]:
         else:
             if stored["fingerprint"] == fingerprint:
                 return stored["infos"]
+    _adopt_unmarked_database(source.root / DATABASE_DIR)
+    check_output_folder(source.root / DATABASE_DIR, COMMAND)  # before the old info file goes
     info_path.unlink(missing_ok=True)
     infos, db_infos = [], defaultdict(list)
-    with atomic_dir(source.root / DATABASE_DIR, "memslidar create-infos") as database:
+    with atomic_dir(source.root / DATABASE_DIR, COMMAND) as database:
         for frame_id in progress_bar(layout.frame_ids(), desc=f"infos + gt database of {source.name}", leave=False):
             frame = read_frame(layout, frame_id)
             points, boxes, names = frame["points"], frame["gt_boxes"], np.asarray(frame["gt_names"])

@@ -141,6 +141,12 @@ def check_output_folder(path: str | Path, owner: str) -> None:
                           f"it will not replace them; {fix}")
 
 
+def mark_output(folder: str | Path, owner: str) -> None:
+    """Write OWNER_FILE into `folder`: `owner` (a command) wrote it and may replace it (check_output_folder)."""
+    write_text(Path(folder) / OWNER_FILE, f"{owner}\nThis folder was written by `{owner}`; running it again replaces "
+                                          "the folder whole. Keep your own files elsewhere.\n")
+
+
 @contextlib.contextmanager
 def atomic_dir(path: str | Path, owner: str) -> Iterator[Path]:
     """Yield an empty temporary folder beside `path`; on success it replaces `path` whole, else it is removed.
@@ -155,8 +161,7 @@ def atomic_dir(path: str | Path, owner: str) -> Iterator[Path]:
     tmp = _make_temporary_dir(path)
     try:
         yield tmp
-        (tmp / OWNER_FILE).write_text(f"{owner}\nThis folder was written by `{owner}`; running it again replaces "
-                                      "the folder whole. Keep your own files elsewhere.\n", encoding="utf-8")
+        mark_output(tmp, owner)
         check_output_folder(path, owner)
         if path.exists():
             old = _make_temporary_dir(path)

@@ -122,7 +122,11 @@ def test_create_infos_rebuilds_its_own_gt_database(tmp_path):
     for _ in range(2):  # the rerun (--force) replaces the database it wrote
         assert len(create_domain_infos(Source("real", tmp_path, None), force=True)) == 1
     assert sorted(p.name for p in (tmp_path / DATABASE_DIR).iterdir()) == [OWNER_FILE, "000000_Pedestrian_0.bin"]
-    (tmp_path / DATABASE_DIR / OWNER_FILE).unlink()  # now a folder create-infos did not write
+    (tmp_path / DATABASE_DIR / OWNER_FILE).unlink()  # as an older version wrote it: object files only, no marker
+    assert len(create_domain_infos(Source("real", tmp_path, None), force=True)) == 1  # adopted and replaced
+    (tmp_path / DATABASE_DIR / OWNER_FILE).unlink()
+    (tmp_path / DATABASE_DIR / "notes.txt").write_text("mine")  # now a folder create-infos did not write
     with pytest.raises(OutputError, match=rf"{DATABASE_DIR} holds files that memslidar create-infos did not write"):
         create_domain_infos(Source("real", tmp_path, None), force=True)
-    assert sorted(p.name for p in (tmp_path / DATABASE_DIR).iterdir()) == ["000000_Pedestrian_0.bin"]
+    assert sorted(p.name for p in (tmp_path / DATABASE_DIR).iterdir()) == ["000000_Pedestrian_0.bin", "notes.txt"]
+    assert (tmp_path / "memslidar_infos.pkl").is_file()  # the refused rebuild left the info file in place
