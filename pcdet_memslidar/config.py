@@ -32,6 +32,7 @@ from __future__ import annotations
 import difflib
 import functools
 import logging
+import math
 import re
 from pathlib import Path
 
@@ -375,8 +376,9 @@ def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile
     """The full config: YAML (with bases), then the profile (`profile`, a --set PROFILE, or the file's PROFILE),
     then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH.
 
-    ConfigError (naming the file) for a POINT_CLOUD_RANGE that is no 6 numbers, and for a SECOND model whose voxel
-    grid it cannot take (pcdet_memslidar.grid.check_config_grid, with sizes that fit)."""
+    ConfigError (naming the file) for a POINT_CLOUD_RANGE that is no 6 numbers, for a SECOND model whose voxel
+    grid it cannot take (pcdet_memslidar.grid.check_config_grid, with sizes that fit) and for optimisation values
+    that cannot train (check_optimization)."""
     pairs = _set_pairs(set_cfgs)
     config = cfg_from_yaml_file(cfg_file)
     apply_profile(config, profile or dict(pairs).get("PROFILE"))
@@ -387,7 +389,23 @@ def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile
     config.TAG = Path(cfg_file).stem
     config.EXP_GROUP_PATH = experiment_group(cfg_file)
     check_config_grid(config)
+    check_optimization(config)
     return config
+
+
+def check_optimization(config: EasyDict) -> None:
+    """ConfigError naming the config when its OPTIMIZATION has an LR that is no positive finite number, or a
+    BATCH_SIZE_PER_GPU or NUM_EPOCHS that is no positive integer (keys it leaves out are not checked here)."""
+    optimization = config.get("OPTIMIZATION") or {}
+    lr = optimization.get("LR", 1.0)
+    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not math.isfinite(lr) or lr <= 0:
+        raise ConfigError(f"{config.CFG_FILE}: OPTIMIZATION.LR is {lr!r}: the learning rate must be a positive finite "
+                          f"number; set it in the config, its profile or with --set OPTIMIZATION.LR VALUE")
+    for key in ("BATCH_SIZE_PER_GPU", "NUM_EPOCHS"):
+        value = optimization.get(key, 1)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ConfigError(f"{config.CFG_FILE}: OPTIMIZATION.{key} is {value!r}: it must be a positive integer; set "
+                              f"it to 1 or more (in the config, its profile or --set OPTIMIZATION.{key} N)")
 
 
 def log_config_to_file(config: dict, pre: str = "cfg", logger: logging.Logger | None = None) -> None:

@@ -155,11 +155,11 @@ def _z_cells(num_bev_features) -> tuple[int, int]:
     """(fewest, most) z cells that VoxelBackBone8x turns into num_bev_features / 128 output cells; ConfigError when
     num_bev_features is no positive multiple of 128."""
     depth = num_bev_features // SPARSE_OUTPUT_CHANNELS if isinstance(num_bev_features, int) else 0
-    fitting = [z for z in range(1, 16 * depth + 32) if sparse_output_shape([z + 1, 1, 1])[0] == depth]
     if depth < 1 or depth * SPARSE_OUTPUT_CHANNELS != num_bev_features:
         raise ConfigError(f"MODEL.MAP_TO_BEV.NUM_BEV_FEATURES is {num_bev_features!r}: HeightCompression stacks "
                           f"VoxelBackBone8x's {SPARSE_OUTPUT_CHANNELS} channels per output z cell, so it must be a "
                           f"positive multiple of {SPARSE_OUTPUT_CHANNELS} (256 for a grid 40 z cells deep)")
+    fitting = [z for z in range(1, 16 * depth + 32) if sparse_output_shape([z + 1, 1, 1])[0] == depth]
     return fitting[0], fitting[-1]
 
 

@@ -44,7 +44,6 @@ from pcdet_memslidar.evaluation.report import HEADLINE, add_figures, environment
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
-from pcdet_memslidar.runtime.experiment import check_learning_rate, positive_count
 from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.train import train
 from pcdet_memslidar.sim.domains import get_domain
@@ -63,13 +62,9 @@ CURVE_FILE = "curve.json"  # per epoch: training loss, validation AP, training m
 
 def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None):
     """The experiment config cfgs/<model>.yaml with `profile` applied, then DATA_PATH = data_root (if given) and
-    the --set overrides [KEY, VALUE, ...]; checked as `memslidar train` checks it (grid, batch size, epochs, lr)."""
+    the --set overrides [KEY, VALUE, ...] (checked at load: grid, batch size, epochs, lr)."""
     overrides = (["DATA_CONFIG.DATA_PATH", str(data_root)] if data_root is not None else []) + list(set_cfgs or [])
-    cfg = load_config(CONFIG_DIR / f"{model.lower()}.yaml", overrides, profile=profile)
-    check_learning_rate(cfg)
-    for key in ("BATCH_SIZE_PER_GPU", "NUM_EPOCHS"):
-        positive_count(None, f"--set OPTIMIZATION.{key}", cfg, key)
-    return cfg
+    return load_config(CONFIG_DIR / f"{model.lower()}.yaml", overrides, profile=profile)
 
 
 def frames_needed(cfgs: dict) -> dict[str, Source]:

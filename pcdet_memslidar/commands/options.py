@@ -7,7 +7,7 @@ from pathlib import Path
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.runtime.common import default_workers
-from pcdet_memslidar.runtime.experiment import Process, output_folder, positive_count, start_process
+from pcdet_memslidar.runtime.experiment import Process, option_count, output_folder, start_process
 
 
 def add_profile(parser: argparse.ArgumentParser, default: str | None = None) -> None:
@@ -58,6 +58,6 @@ def setup_experiment(args: argparse.Namespace) -> tuple[object, Process, Path]:
     replaces OPTIMIZATION.BATCH_SIZE_PER_GPU) with its grid (load_config) and batch size checked before any data is
     read, the process joined to its group (--launcher), and <output root>/<group>/<cfg name>/<extra_tag>."""
     cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
-    cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU = positive_count(args.batch_size, "--batch_size", cfg, "BATCH_SIZE_PER_GPU")
+    cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU = option_count(args.batch_size, "--batch_size", "BATCH_SIZE_PER_GPU", cfg)
     process = start_process(args.launcher, args.tcp_port, args.local_rank)
     return cfg, process, output_folder(cfg, args.output_dir, args.extra_tag)

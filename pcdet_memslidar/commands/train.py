@@ -16,7 +16,7 @@ from pcdet_memslidar.commands.options import add_openpcdet_arguments, setup_expe
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints
 from pcdet_memslidar.runtime.common import create_logger
-from pcdet_memslidar.runtime.experiment import ap_line, check_learning_rate, positive_count, scalars, test_split
+from pcdet_memslidar.runtime.experiment import ap_line, option_count, scalars, test_split
 from pcdet_memslidar.runtime.predict import predict, test_loader
 from pcdet_memslidar.runtime.train import train
 
@@ -46,8 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg, process, output_dir = setup_experiment(args)
-    check_learning_rate(cfg)
-    cfg.OPTIMIZATION.NUM_EPOCHS = epochs = positive_count(args.epochs, "--epochs", cfg, "NUM_EPOCHS")
+    cfg.OPTIMIZATION.NUM_EPOCHS = epochs = option_count(args.epochs, "--epochs", "NUM_EPOCHS", cfg)
     logger = create_logger(output_dir / f"log_train_{datetime.datetime.now():%Y%m%d-%H%M%S}.txt", rank=process.rank)
     logger.info("**********************Start logging**********************")
     logger.info(f"device {process.device}, {process.world_size} process(es), {process.threads} torch threads each, "

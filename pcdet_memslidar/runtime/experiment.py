@@ -51,27 +51,17 @@ def output_folder(cfg, output_root: str | Path | None, extra_tag: str) -> Path:
     return root / cfg.EXP_GROUP_PATH / cfg.TAG / extra_tag
 
 
-def positive_count(option_value: int | None, option: str, cfg, key: str) -> int:
-    """`option_value` (command-line `option`) when given, else cfg.OPTIMIZATION[key]; ConfigError naming where the
-    value came from and the fix unless it is a positive integer."""
-    if option_value is not None:
-        if option_value < 1:
-            raise ConfigError(f"{option} {option_value}: must be a positive integer; pass 1 or more, or leave it out "
-                              f"to use OPTIMIZATION.{key} of the config")
-        return option_value
-    value = cfg.OPTIMIZATION.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ConfigError(f"{cfg.CFG_FILE}: OPTIMIZATION.{key} is {value!r}: it must be a positive integer; set it "
-                          f"to 1 or more (in the config, its profile or --set OPTIMIZATION.{key} N) or pass {option} N")
+def option_count(value: int | None, option: str, key: str, cfg) -> int:
+    """`value` of the command-line `option` when given (ConfigError unless it is 1 or more), else
+    cfg.OPTIMIZATION[key] (checked when the config was loaded)."""
+    if value is None:
+        if key not in cfg.OPTIMIZATION:
+            raise ConfigError(f"{cfg.CFG_FILE}: OPTIMIZATION.{key} is missing; set it in the config or pass {option} N")
+        return cfg.OPTIMIZATION[key]
+    if value < 1:
+        raise ConfigError(f"{option} {value}: must be a positive integer; pass 1 or more, or leave it out to use "
+                          f"OPTIMIZATION.{key} of the config")
     return value
-
-
-def check_learning_rate(cfg) -> None:
-    """ConfigError naming the config unless OPTIMIZATION.LR is a positive finite number."""
-    lr = cfg.OPTIMIZATION.get("LR")
-    if isinstance(lr, bool) or not isinstance(lr, (int, float)) or not math.isfinite(lr) or lr <= 0:
-        raise ConfigError(f"{cfg.CFG_FILE}: OPTIMIZATION.LR is {lr!r}: the learning rate must be a positive finite "
-                          f"number; set it in the config, its profile or with --set OPTIMIZATION.LR VALUE")
 
 
 def test_split(cfg) -> str:

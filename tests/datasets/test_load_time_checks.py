@@ -65,7 +65,7 @@ def test_point_cloud_range_must_be_six_numbers(tmp_path, capsys):
     (["--batch_size", "-2"], "--batch_size -2: must be a positive integer"),
     (["--set", "OPTIMIZATION.BATCH_SIZE_PER_GPU", "0"],
      "m3.yaml: OPTIMIZATION.BATCH_SIZE_PER_GPU is 0: it must be a positive integer; set it to 1 or more (in the "
-     "config, its profile or --set OPTIMIZATION.BATCH_SIZE_PER_GPU N) or pass --batch_size N"),
+     "config, its profile or --set OPTIMIZATION.BATCH_SIZE_PER_GPU N)"),
     (["--epochs", "0"], "--epochs 0: must be a positive integer; pass 1 or more, or leave it out to use "
                         "OPTIMIZATION.NUM_EPOCHS of the config"),
     (["--set", "OPTIMIZATION.LR", "-0.001"],
