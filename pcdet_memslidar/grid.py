@@ -10,6 +10,7 @@ datasets and the model all use this one module):
   (ANCHOR_GENERATOR_CONFIG feature_map_stride, grid // stride). x and y must be multiples of 8 x prod(LAYER_STRIDES)
   and of the head's stride, so that no stride rounds and the BEV map has the anchors' size (OpenPCDet issues #634,
   #666, #1162).
+- anchors: boxes folded to headings in [-pi/4, pi/4) (DATA_PROCESSOR fold_box_headings) take one anchor rotation, 0.
 """
 from __future__ import annotations
 
@@ -130,7 +131,21 @@ def _check_grid(cfg) -> np.ndarray | None:
                        if step.NAME == "transform_points_to_voxels"), None)
     if voxel_size is None:
         raise ConfigError("DATA_CONFIG.DATA_PROCESSOR has no transform_points_to_voxels step, which SECOND needs")
+    _check_folded_anchors(cfg.MODEL, data_config)
     return check_second_grid(cfg.MODEL, data_config.POINT_CLOUD_RANGE, voxel_size)
+
+
+def _check_folded_anchors(model_cfg, data_config) -> None:
+    """Boxes folded to headings in [-pi/4, pi/4) (DATA_PROCESSOR fold_box_headings) need one anchor rotation, 0: an
+    anchor turned by a quarter would have to regress every box through a quarter turn. ConfigError otherwise."""
+    if not any(step.NAME == "fold_box_headings" for step in data_config.get("DATA_PROCESSOR", [])):
+        return
+    for anchor in model_cfg.get("DENSE_HEAD", {}).get("ANCHOR_GENERATOR_CONFIG", []):
+        if list(anchor["anchor_rotations"]) != [0]:
+            raise ConfigError(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: anchor_rotations "
+                              f"{list(anchor['anchor_rotations'])} with DATA_PROCESSOR fold_box_headings, which "
+                              f"folds every box to a heading in [-45, 45) deg: set anchor_rotations to [0], or remove "
+                              f"the fold_box_headings step")
 
 
 def _head_stride(model_cfg) -> int:

@@ -1,4 +1,5 @@
 """Voxel-grid rule: one rule for the config loader, the OpenPCDet launcher and the model."""
+import json
 import re
 from pathlib import Path
 
@@ -115,3 +116,17 @@ def _set_values(cfg_list, config):
         for part in parents:
             node = node[part]
         node[leaf] = yaml.safe_load(text)
+
+
+def test_folded_boxes_take_one_anchor_rotation():
+    two = ("MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG", "[{class_name: Pedestrian, anchor_sizes: [[0.8, 0.6, 1.73]], "
+           "anchor_rotations: [0, 1.57], anchor_bottom_heights: [0.0], align_center: False, feature_map_stride: 4, "
+           "matched_threshold: 0.35, unmatched_threshold: 0.2}]")
+    with pytest.raises(ConfigError, match=re.escape(
+            f"{M3}: ANCHOR_GENERATOR_CONFIG Pedestrian: anchor_rotations [0, 1.57] with DATA_PROCESSOR "
+            f"fold_box_headings, which folds every box to a heading in [-45, 45) deg: set anchor_rotations to [0]")):
+        _quick(QUICK_RANGE, *two)
+    steps = [step for step in _quick(QUICK_RANGE).DATA_CONFIG.DATA_PROCESSOR if step.NAME != "fold_box_headings"]
+    unfolded = json.dumps(steps)  # JSON is YAML
+    assert check_config_grid(_quick(QUICK_RANGE, *two, "DATA_CONFIG.DATA_PROCESSOR", unfolded)).tolist() == \
+        [384, 464, 40]

@@ -1,4 +1,5 @@
-"""3D boxes in the LiDAR frame: corners, points in boxes, heading normalisation, LiDAR <-> KITTI camera boxes.
+"""3D boxes in the LiDAR frame: corners, points in boxes, heading normalisation and folding, LiDAR <-> KITTI
+camera boxes.
 
 A LiDAR box is OpenPCDet's (7,) [x, y, z_center, dx, dy, dz, heading]: centre [m], size along its own x / y / z
 [m], heading [rad] counter-clockwise from +x about +z. A KITTI camera box is (7,) [x, y, z, l, h, w, rotation_y]:
@@ -40,6 +41,23 @@ def limit_period(val, offset: float = 0.5, period: float = 2 * np.pi):
 def normalize_heading(heading):
     """Heading (or any angle) [rad] wrapped into [-pi, pi): the package's one wrap (labels, KITTI alpha, boxes)."""
     return limit_period(heading, offset=0.5, period=2 * np.pi)
+
+
+def fold_box_headings(boxes) -> np.ndarray:
+    """(M, 7+) LiDAR boxes -> a copy, each the same rectangle with its heading folded into [-pi/4, pi/4).
+
+    A box is a rectangle: (dx, dy, heading) and (dy, dx, heading + pi/2) cover the same points. Each odd quarter
+    turn removed swaps dx and dy; extra columns are kept. Computed in float64 (a float32 heading of -pi/4 lands on
+    +pi/4 after rounding: the same box). Used as a training target, the folded box needs one anchor rotation and
+    never a regression through a quarter turn, where the sine loss of the heading has no gradient.
+    """
+    boxes = np.array(boxes, copy=True)
+    heading = boxes[:, 6].astype(np.float64)
+    turns = np.floor((heading + np.pi / 4) / (np.pi / 2))
+    boxes[:, 6] = heading - turns * (np.pi / 2)
+    odd = np.mod(turns, 2) == 1
+    boxes[odd, 3:5] = boxes[odd][:, [4, 3]]
+    return boxes
 
 
 def rotate_points_along_z(points: np.ndarray, angle) -> np.ndarray:

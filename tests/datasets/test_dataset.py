@@ -61,6 +61,7 @@ def test_m3_training_set_matches_table2_smoke_counts_and_batches_are_well_formed
         assert batch["gt_boxes"].shape[2] == 8
         real = np.abs(batch["gt_boxes"]).sum(axis=2) > 0
         assert (batch["gt_boxes"][real][:, 7] == 1).all() and real.any(axis=1).all()
+        assert (np.abs(batch["gt_boxes"][real][:, 6]) <= np.float32(np.pi / 4)).all()  # fold_box_headings
         assert set(np.unique(batch["voxel_coords"][:, 0])) == set(range(b))
         coords = batch["voxel_coords"][:, 1:]
         assert (coords >= 0).all() and (coords < grid[::-1]).all()

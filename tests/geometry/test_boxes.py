@@ -1,4 +1,4 @@
-"""Box corners, points in boxes, heading wrapping and LiDAR <-> KITTI camera boxes."""
+"""Box corners, points in boxes, heading wrapping and folding, LiDAR <-> KITTI camera boxes."""
 import numpy as np
 import pytest
 import torch
@@ -8,6 +8,7 @@ from pcdet_memslidar.geometry.boxes import (
     boxes_lidar_to_camera,
     boxes_to_corners_3d,
     enlarge_box3d,
+    fold_box_headings,
     limit_period,
     normalize_heading,
     points_in_boxes_mask,
@@ -71,3 +72,41 @@ def test_camera_round_trip_and_kitti_convention():
 def test_bad_box_shape_names_the_problem():
     with pytest.raises(ValueError, match=r"expected an \(N, 7\) array"):
         boxes_to_corners_3d(np.zeros(7))
+
+
+def test_fold_box_headings_exact_values_at_the_quarter_turns():
+    # heading -> (folded heading, dx, dy) of a 0.75 x 0.5 box; +-pi/4 both go to -pi/4 (into [-pi/4, pi/4))
+    cases = [
+        (0.0, 0.0, 0.75, 0.5),
+        (np.pi / 2, 0.0, 0.5, 0.75),
+        (-np.pi / 2, 0.0, 0.5, 0.75),
+        (np.pi, 0.0, 0.75, 0.5),
+        (-np.pi, 0.0, 0.75, 0.5),
+        (np.pi / 4, -np.pi / 4, 0.5, 0.75),
+        (-np.pi / 4, -np.pi / 4, 0.75, 0.5),
+        (3 * np.pi / 4, -np.pi / 4, 0.75, 0.5),
+        (0.25, 0.25, 0.75, 0.5),
+        (1.75, 1.75 - np.pi / 2, 0.5, 0.75),
+        (-2.0, -2.0 + np.pi / 2, 0.5, 0.75),
+        (1000 * np.pi + 0.25, 0.25, 0.75, 0.5),
+    ]
+    boxes = np.array([[1.0, 2.0, 0.9, 0.75, 0.5, 1.8, heading, 7.0] for heading, *_ in cases])
+    folded = fold_box_headings(boxes)
+    expected = np.array([[heading, dx, dy] for _, heading, dx, dy in cases])
+    np.testing.assert_allclose(folded[:, [6, 3, 4]], expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(folded[:, [0, 1, 2, 5, 7]], boxes[:, [0, 1, 2, 5, 7]])  # centre, height, class kept
+    assert boxes[1, 6] == np.pi / 2  # the input is not changed
+
+
+def test_folded_boxes_are_the_same_rectangles():
+    rng = np.random.default_rng(0)
+    boxes = np.column_stack([rng.uniform(-20, 20, (500, 3)), rng.uniform(0.2, 1.0, (500, 3)),
+                             rng.uniform(-10, 10, 500)]).astype(np.float32)
+    folded = fold_box_headings(boxes)
+    assert folded.dtype == np.float32
+    assert (np.abs(folded[:, 6]) <= np.float32(np.pi / 4)).all()
+    # the same 8 corners, in another order: compare each corner with its nearest one of the folded box
+    corners, corners_folded = boxes_to_corners_3d(boxes), boxes_to_corners_3d(folded)
+    gaps = np.linalg.norm(corners[:, :, None] - corners_folded[:, None], axis=3).min(axis=2)
+    assert gaps.max() < 1e-5
+    assert fold_box_headings(np.zeros((0, 8), np.float32)).shape == (0, 8)

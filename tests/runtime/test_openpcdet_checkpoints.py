@@ -37,6 +37,10 @@ def cfg():
     cfg = load_config(REPO / "cfgs" / "m3.yaml", TINY_BEV)
     cfg.MODEL.BACKBONE_2D.UPSAMPLE_STRIDES = [1, 2]  # and anchors at its stride 8 (the loader checks both together)
     cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].feature_map_stride = 8
+    # the smoke profile of its time: OpenPCDet's two anchor rotations, boxes not folded
+    cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].anchor_rotations = [0, 1.57]
+    steps = cfg.DATA_CONFIG.DATA_PROCESSOR
+    cfg.DATA_CONFIG.DATA_PROCESSOR = [step for step in steps if step.NAME != "fold_box_headings"]
     return cfg
 
 

@@ -1,12 +1,13 @@
 """Data processing after augmentation, each step chosen by NAME from DATA_PROCESSOR (OpenPCDet's names):
-range masking, point shuffling and voxelisation with spconv's PointToVoxel (coords in z, y, x)."""
+range masking, point shuffling and voxelisation with spconv's PointToVoxel (coords in z, y, x); and ours,
+fold_box_headings (ground-truth boxes as the same rectangles with headings in [-pi/4, pi/4))."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from ...errors import ConfigError
-from ...geometry.boxes import boxes_to_corners_3d
+from ...geometry.boxes import boxes_to_corners_3d, fold_box_headings
 from ...grid import grid_size
 
 
@@ -76,6 +77,13 @@ class DataProcessor:
                     data_dict["gt_names"] = data_dict["gt_names"][keep]
             return data_dict
         return mask
+
+    def _build_fold_box_headings(self, config):
+        def fold(data_dict, rng):
+            if data_dict.get("gt_boxes") is not None:
+                data_dict["gt_boxes"] = fold_box_headings(data_dict["gt_boxes"])
+            return data_dict
+        return fold
 
     def _build_shuffle_points(self, config):
         enabled = bool(config.SHUFFLE_ENABLED[self.mode])
