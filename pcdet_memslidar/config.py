@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import json
 import logging
 import math
 import re
@@ -360,6 +361,20 @@ def apply_profile(config: EasyDict, profile: str | None = None) -> EasyDict:
     _merge(config, EasyDict(overrides))
     config.PROFILE = profile
     return config
+
+
+def profile_settings(config: EasyDict) -> list[str]:
+    """'KEY.SUB value' for every leaf that config's active profile sets (list items as KEY[i]), in file order."""
+    def leaves(node, key: str):
+        if isinstance(node, dict):
+            for name, value in node.items():
+                yield from leaves(value, f"{key}.{name}" if key else name)
+        elif isinstance(node, list) and any(isinstance(item, dict) for item in node):
+            for index, item in enumerate(node):
+                yield from leaves(item, f"{key}[{index}]")
+        else:
+            yield f"{key} {json.dumps(node)}"
+    return list(leaves((config.get("PROFILES") or {}).get(config.get("PROFILE"), {}), ""))
 
 
 def experiment_group(cfg_file: str | Path) -> str:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.config import CONFIG_DIR, load_config
+from pcdet_memslidar.config import CONFIG_DIR, load_config, profile_settings
 from pcdet_memslidar.datasets.infos import create_domain_infos
 from pcdet_memslidar.datasets.mixing import (
     BUNDLED_DOMAINS,
@@ -295,7 +295,8 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
         runs[job["model"]].append(run)
 
     results = {  # 4. report
-        "profile": profile, "overrides": list(set_cfgs or []), "seeds": list(range(seeds)), "command": command,
+        "profile": profile, "profile_settings": profile_settings(next(iter(cfgs.values()))),
+        "overrides": list(set_cfgs or []), "seeds": list(range(seeds)), "command": command,
         "date": started.isoformat(timespec="seconds"), "jobs": parallel,
         "environment": environment(), "test_domain": test,
         "data": {name: {"path": str(needed[name].root), "frames": len(domain_infos), "domain": needed[name].domain,

@@ -2,7 +2,8 @@
 (machine-readable) and report.md (Tables 2 and 3 beside the paper's).
 
 `results` is one JSON-ready dict (assembled by pcdet_memslidar.reproduce from the parts here):
-    profile, overrides [KEY, VALUE, ...] (--set), seeds [int], command, date (ISO), wall_seconds,
+    profile, profile_settings ['KEY.SUB value', ...] (what the profile sets: config.profile_settings),
+    overrides [KEY, VALUE, ...] (--set), seeds [int], command, date (ISO), wall_seconds,
     environment {package, python, libraries {name: version}, machine {cpu, cores, torch_threads, gpu}},
     stages {name: seconds} (in run order),
     data {domain: {path, frames, boxes}}, test_domain, figures {key: file name}, example_frames [{role, frame_id, why}],
@@ -343,6 +344,9 @@ def render_report(results: dict) -> str:
         "# M1-M4 reproduction report", "",
         f"- profile: **{results['profile']}**{overrides}; {seed_note}",
         f"- command: `{results['command']}`",
+        *([f"- what the profile sets (its PROFILES entry; the rest is the config as written): "
+           f"{'; '.join(f'`{item}`' for item in results['profile_settings'])}"]
+          if results.get("profile_settings") else []),
         f"- date: {results['date']}; total wall time {results['wall_seconds'] / 60:.1f} min", "",
         "The bundled `real` and `industrial` domains are **simulated stand-ins** for the paper's unpublished Cube 1 "
         "recordings (DESIGN.md); the numbers below compare the method, not the paper's data.", "",

@@ -1,9 +1,11 @@
 """Report writer on hand-made results (no training): exact numbers, complete tables."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from pcdet_memslidar.config import load_config, profile_settings
 from pcdet_memslidar.evaluation.report import (
     gain_over_reference,
     order_statement,
@@ -12,6 +14,8 @@ from pcdet_memslidar.evaluation.report import (
     table2,
     write_report,
 )
+
+CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
 
 def make_results(ap: dict, seeds=(0,), std=0.0):
@@ -95,3 +99,14 @@ def test_table2_percentages():
     lines = table2(make_results({"M1": 0.1, "M2": 0.1, "M3": 0.1, "M4": 0.1}))
     assert lines[2].startswith("| M1 | 0 / 100 | 0 / 20 |")
     assert lines[4].startswith("| M3 | 50 / 50 | 10 / 10 |")
+
+
+def test_report_states_what_its_profile_sets():
+    settings = profile_settings(load_config(CFGS / "m3.yaml", profile="quick"))
+    assert "DATA_CONFIG.MIX.TOTAL 400" in settings and "OPTIMIZATION.NUM_EPOCHS 4" in settings
+    assert 'DATA_CONFIG.DATA_PROCESSOR[0].NAME "fold_box_headings"' in settings
+    assert "MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].anchor_rotations [0]" in settings
+    assert profile_settings(load_config(CFGS / "m3.yaml", profile="paper")) == []  # the config as written
+    text = render_report(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.3, "M4": 0.4}) | {"profile_settings": settings})
+    assert "- what the profile sets (its PROFILES entry; the rest is the config as written): `DATA_CONFIG.MIX.TOTAL " \
+           "400`; `DATA_CONFIG.TEST_SOURCE.COUNT 100`;" in text
