@@ -39,8 +39,8 @@ from pcdet_memslidar.utils.cores import available_cores
 # anchors' feature_map_stride (the head's stride; anchors every stride x voxel)
 VARIANTS = {
     "recipe": {},
-    "BEV width x2": {"filters": [128, 256], "upsample_filters": [256, 256]},
-    "BEV width x1/2": {"filters": [32, 64], "upsample_filters": [64, 64]},
+    "BEV width x2": {"width": 2.0},
+    "BEV width x1/2": {"width": 0.5},
     "stride-8 head": {"upsample_strides": [1, 2], "head_stride": 8},
 }
 
@@ -49,12 +49,12 @@ def voxel_step(cfg) -> dict:
     return next(p for p in cfg.DATA_CONFIG.DATA_PROCESSOR if p.NAME == "transform_points_to_voxels")
 
 
-def apply_variant(cfg, filters=None, upsample_filters=None, upsample_strides=None, head_stride=None):
-    """A copy of cfg with the variant's BEV widths and head stride."""
+def apply_variant(cfg, width=1.0, upsample_strides=None, head_stride=None):
+    """A copy of cfg with the BEV backbone's channels times `width` and the variant's head stride."""
     cfg = copy.deepcopy(cfg)
     bev = cfg.MODEL.BACKBONE_2D
-    bev.NUM_FILTERS = filters or bev.NUM_FILTERS
-    bev.NUM_UPSAMPLE_FILTERS = upsample_filters or bev.NUM_UPSAMPLE_FILTERS
+    bev.NUM_FILTERS = [round(n * width) for n in bev.NUM_FILTERS]
+    bev.NUM_UPSAMPLE_FILTERS = [round(n * width) for n in bev.NUM_UPSAMPLE_FILTERS]
     bev.UPSAMPLE_STRIDES = upsample_strides or bev.UPSAMPLE_STRIDES
     for anchor in cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG:
         anchor["feature_map_stride"] = head_stride or anchor["feature_map_stride"]

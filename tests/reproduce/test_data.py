@@ -26,7 +26,9 @@ def test_frames_needed_per_profile(tmp_path):
 
 def test_test_frames_come_from_the_profiles_and_the_test_split_reads_them_all(tmp_path):
     quick = frames_needed({model: model_config(model, "quick", tmp_path) for model in RUNS})
-    assert quick["industrial"].count == 100  # PROFILES.quick: DATA_CONFIG.TEST_SOURCE.COUNT
+    assert quick["industrial"].count == 230  # COUNT null: the industrial preset's frames, the paper's split
+    smoke = frames_needed({model: model_config(model, "smoke", tmp_path) for model in RUNS})
+    assert smoke["industrial"].count == 8  # PROFILES.smoke: DATA_CONFIG.TEST_SOURCE.COUNT
     cfg = model_config("M3", "smoke", tmp_path, ["DATA_CONFIG.TEST_SOURCE.COUNT", "5"])
     assert frames_needed({"M3": cfg})["industrial"].count == 5
     assert split_sources(cfg.DATA_CONFIG, "test", tmp_path)[0].count is None  # every frame of the folder
