@@ -6,8 +6,9 @@ The story, one stage per line (each stage's wall time goes into the report):
    simulation.json) is used as it is, so real data replaces a simulated stand-in;
 2. infos: info files and ground-truth databases of each source (rebuilt only when the frames changed);
 3. per seed, M1-M4 (cfgs/m1.yaml ... m4.yaml, the same SECOND and hyper-parameters, Table 2 mixes) and the oracle
-   (cfgs/oracle.yaml: industrial frames of another simulation seed, the same budget): runtime.train with the
-   validation AP of every epoch (resumes from the newest checkpoint; a finished model is reused), then
+   (cfgs/oracle.yaml: industrial frames of another simulation seed, the same budget), and on request M5
+   (cfgs/m5.yaml: pre-trained on sim, fine-tuned on real, at M3's compute): runtime.train with the validation AP
+   of every epoch (resumes from the newest checkpoint; a finished model is read back from its run.json), then
    runtime.predict over the industrial split, saved as KITTI labels with scores. `jobs` models train at once, each
    in its own process on its share of the cores: on a CPU the sparse convolutions use one thread, so several
    one-thread trainings make better use of the cores than one training on all of them;
@@ -40,11 +41,20 @@ from pcdet_memslidar.datasets.mixing import (
     split_sources,
 )
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.evaluation.report import HEADLINE, add_figures, environment, model_entry, score_run, write_report
+from pcdet_memslidar.evaluation.report import (
+    HEADLINE,
+    add_figures,
+    environment,
+    json_safe,
+    model_entry,
+    score_run,
+    write_report,
+)
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
 from pcdet_memslidar.runtime.predict import predict
+from pcdet_memslidar.runtime.pretrain import split_stages
 from pcdet_memslidar.runtime.train import train
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
@@ -55,9 +65,12 @@ from pcdet_memslidar.utils.progress import progress_bar
 
 MODELS = ("M1", "M2", "M3", "M4")
 ORACLE = "oracle"  # trained in-domain: the ceiling of what a mix can reach on the industrial split
-RUNS = (*MODELS, ORACLE)
+RUNS = (*MODELS, ORACLE)  # what the reproduction trains unless told otherwise
+FINETUNED = "M5"  # pre-trained on sim, fine-tuned on real at M3's compute (cfgs/m5.yaml): a question of the paper's
+KNOWN_RUNS = (*MODELS, FINETUNED, ORACLE)  # in Table 3's order
 RUN_CONFIG = "config.json"  # the config a run folder's checkpoints were trained with
 CURVE_FILE = "curve.json"  # per epoch: training loss, validation AP, training minutes
+RUN_FILE = "run.json"  # a finished run's entry (its scores on the test split), read back instead of run again
 
 
 def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None):
@@ -84,8 +97,9 @@ def frames_needed(cfgs: dict) -> dict[str, Source]:
                                      source.seed)
 
     for cfg in cfgs.values():
-        for source in resolve_sources(cfg.DATA_CONFIG.MIX, Path(cfg.DATA_CONFIG.DATA_PATH)):
-            need(source, source.count)
+        for stage in filter(None, split_stages(cfg)):  # a pre-training stage reads its own sources (M5)
+            for source in resolve_sources(stage.DATA_CONFIG.MIX, Path(cfg.DATA_CONFIG.DATA_PATH)):
+                need(source, source.count)
         test, = split_sources(cfg.DATA_CONFIG, "test", Path(cfg.DATA_CONFIG.DATA_PATH))
         count = check_count(cfg.DATA_CONFIG.TEST_SOURCE.get("COUNT"), "DATA_CONFIG.TEST_SOURCE.COUNT")
         preset = count is None and test.domain in BUNDLED_DOMAINS
@@ -105,14 +119,27 @@ def prepare_domain(source: Source, logger) -> None:
     simulate_dataset(get_domain(source.domain), source.count, source.root, seed=source.seed)
 
 
+def prepare_data(needed: dict[str, Source], clock, logger) -> dict[str, list[dict]]:
+    """Stages 1 and 2 for the sources `needed` (frames_needed): their frames (prepare_domain), then their info files
+    and ground-truth databases (rebuilt only when the frames changed); returns {source name: infos}."""
+    for source in needed.values():
+        with clock(f"data: {source.name}"):
+            prepare_domain(source, logger)
+    with clock("infos"):
+        return {name: create_domain_infos(source) for name, source in needed.items()}
+
+
 def table2_counts(cfg) -> dict[str, dict[str, int]]:
-    """{source: {frames, train, val}} of a model's training set (Table 2 as built)."""
+    """{source: {frames, train, val}} of a model's training set (Table 2 as built); a pre-training stage's sources
+    (M5) as '<source> (pre-training)'."""
     counts = {}
-    for source in resolve_sources(cfg.DATA_CONFIG.MIX, Path(cfg.DATA_CONFIG.DATA_PATH)):
-        frame_ids = KittiLayout(source.root).frame_ids() if source.count else []
-        parts = {split: len(source_split(source, frame_ids, split, cfg.DATA_CONFIG, source.root))
-                 for split in ("train", "val")}
-        counts[source.name] = {"frames": source.count, **parts}
+    pretraining, training = split_stages(cfg)
+    for stage, suffix in ((pretraining, " (pre-training)"), (training, "")):
+        for source in resolve_sources(stage.DATA_CONFIG.MIX, Path(cfg.DATA_CONFIG.DATA_PATH)) if stage else []:
+            frame_ids = KittiLayout(source.root).frame_ids() if source.count else []
+            parts = {split: len(source_split(source, frame_ids, split, stage.DATA_CONFIG, source.root))
+                     for split in ("train", "val")}
+            counts[source.name + suffix] = {"frames": source.count, **parts}
     return counts
 
 
@@ -154,11 +181,18 @@ def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress
 
 def run_model(job: dict, progress=None) -> dict:
     """Train and test one (model, seed) job {model, seed, cfg, run_dir, gt_dir, out, workers, threads}; returns
-    its run entry. Runs in the calling process or in a worker process of `reproduce` (then it logs to
-    run_dir/log.txt only, and progress(epoch) reports its epochs)."""
+    its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there. Runs
+    in the calling process or in a worker process of `reproduce` (then it logs to run_dir/log.txt only, and
+    progress(epoch) reports its epochs)."""
     torch.set_num_threads(job["threads"])
     cfg, run_dir = job["cfg"], Path(job["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
+    check_run_config(cfg, run_dir)
+    if (run_dir / RUN_FILE).is_file():
+        run = json.loads((run_dir / RUN_FILE).read_text())
+        for entry in run["curve"] if progress is not None else []:
+            progress(entry["epoch"])
+        return run
     logger = create_logger(run_dir / "log.txt", name=f"pcdet_memslidar.{job['model']}.{job['seed']}",
                            console=progress is None)
     started = time.perf_counter()
@@ -174,6 +208,8 @@ def run_model(job: dict, progress=None) -> dict:
     run["metrics"]["ms_per_frame"] = ms_per_frame
     logger.info(f"{job['model']} seed {job['seed']}: {HEADLINE} {run['metrics'][HEADLINE]}, "
                 f"{ms_per_frame:.1f} ms/frame ({job['threads']} threads)")
+    run = json_safe(run)
+    write_text(run_dir / RUN_FILE, json.dumps(run, indent=1) + "\n")
     return run
 
 
@@ -247,50 +283,50 @@ class StageClock:
         self.logger.info(f"<== {name}: {self.seconds[name]:.1f} s")
 
 
-def default_jobs() -> int:
-    """Models trained at once: on a CPU the five models of a seed, one thread each (two cores train five one-thread
-    processes at 95 % of the throughput of two, measured, and no core idles while a last model trains alone);
-    one on a GPU."""
-    return 1 if torch.cuda.is_available() else max(available_cores(), len(RUNS))
+def default_jobs(models: int = len(RUNS)) -> int:
+    """Models trained at once: on a CPU the `models` models of a seed, one thread each (two cores train five
+    one-thread processes at 95 % of the throughput of two, measured, and no core idles while a last model trains
+    alone); one on a GPU."""
+    return 1 if torch.cuda.is_available() else max(available_cores(), models)
 
 
 def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None, workers: int = 0,
               command: str = "", set_cfgs: list[str] | None = None, jobs: int | None = None,
-              benchmark_file: Path | None = None) -> dict:
-    """Run the whole reproduction (module docstring) and return the results dict written to out/results.json.
-    benchmark_file: tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time figure
-    when it exists."""
+              benchmark_file: Path | None = None, models: tuple[str, ...] = RUNS) -> dict:
+    """Run the whole reproduction (module docstring) of `models` (of KNOWN_RUNS) and return the results dict written
+    to out/results.json. benchmark_file: tools/benchmark_model.py's results, drawn beside this run's models in the
+    AP-vs-time figure when it exists."""
     if seeds < 1:
         raise ConfigError(f"--seeds must be >= 1, got {seeds}")
-    jobs = default_jobs() if jobs is None else jobs
+    unknown = [model for model in models if model not in KNOWN_RUNS]
+    if unknown or not models:
+        raise ConfigError(f"--models {' '.join(models)}: choose from {' '.join(KNOWN_RUNS)}")
+    models = tuple(model for model in KNOWN_RUNS if model in models)
+    jobs = default_jobs(len(models)) if jobs is None else jobs
     if jobs < 1:
         raise ConfigError(f"--jobs must be >= 1, got {jobs}")
     if workers < 0:
         raise ConfigError(f"--workers must be >= 0 (0: load data in the training process), got {workers}")
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
-    cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in RUNS}
+    cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in models}
     needed = frames_needed(cfgs)
     refuse_overlap(out, [source.root for source in needed.values()], "--out")
     out.mkdir(parents=True, exist_ok=True)
     logger = create_logger(out / "reproduce_log.txt")
     clock = StageClock(logger)
 
-    for source in needed.values():  # 1. data
-        with clock(f"data: {source.name}"):
-            prepare_domain(source, logger)
-    with clock("infos"):  # 2. info files and gt databases
-        infos = {name: create_domain_infos(source) for name, source in needed.items()}
+    infos = prepare_data(needed, clock, logger)  # 1. data, 2. infos
 
-    test = cfgs[MODELS[0]].DATA_CONFIG.TEST_SOURCE.NAME  # 3. train and evaluate M1-M4 and the oracle
+    test = next(iter(cfgs.values())).DATA_CONFIG.TEST_SOURCE.NAME  # 3. train and evaluate M1-M4 and the oracle
     test_layout = KittiLayout(needed[test].root)
     gt_dir, velodyne_dir = test_layout.training / "label_2", test_layout.training / "velodyne"
-    parallel = min(jobs, seeds * len(RUNS))
+    parallel = min(jobs, seeds * len(models))
     todo = [{"model": model, "seed": seed, "cfg": cfg, "run_dir": out / "models" / model / f"seed_{seed}",
              "gt_dir": gt_dir, "out": out, "workers": workers,
              "threads": max(1, available_cores() // parallel)} for seed in range(seeds) for model, cfg in cfgs.items()]
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)
-    runs: dict[str, list[dict]] = {model: [] for model in RUNS}
+    runs: dict[str, list[dict]] = {model: [] for model in models}
     for job, run in zip(todo, finished):
         runs[job["model"]].append(run)
 

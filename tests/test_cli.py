@@ -57,7 +57,7 @@ def test_command_code_lives_in_the_commands_package_only():
 
 @pytest.mark.parametrize("command, required", [
     ("create-infos", ["--cfg", "c.yaml"]), ("train", ["--cfg", "c.yaml"]), ("test", ["--cfg", "c.yaml"]),
-    ("reproduce", []),
+    ("reproduce", []), ("sweep", ["ratio"]),
 ])
 def test_shared_options_are_taken_the_same_way(command, required):
     args = cli.build_parser(command).parse_args([command, *required, "--profile", "smoke", "--set", "A.B", "1"])

@@ -193,7 +193,8 @@ def test_unknown_keys_in_a_file_fail_at_load_with_file_line_and_close_match(proj
                                           r"Fix the spelling or remove the key$"):
         load_config(typo)
     top = _write(project / "cfgs/models/top.yaml", "_BASE_CONFIG_: base.yaml\n\nOPTIMISATION:\n    LR: 0.5\n")
-    with pytest.raises(ConfigError, match=r"top\.yaml:3: unknown key OPTIMISATION; did you mean OPTIMIZATION\?"):
+    with pytest.raises(ConfigError, match=r"top\.yaml:3: unknown key OPTIMISATION; did you mean OPTIMIZATION, "
+                                          r"PRETRAIN\?"):
         load_config(top)
     nested = _write(project / "cfgs/models/nested.yaml", "MODEL:\n    DENSE_HEAD:\n        NUM_DIR_BIN: 2\n")
     with pytest.raises(ConfigError, match=r"nested\.yaml:3: unknown key MODEL\.DENSE_HEAD\.NUM_DIR_BIN; did you mean "

@@ -9,6 +9,7 @@ from pcdet_memslidar.commands.options import add_profile, add_set
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.infos import INFO_FILE, create_domain_infos
 from pcdet_memslidar.datasets.mixing import source_split, split_sources
+from pcdet_memslidar.runtime.pretrain import split_stages
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,16 +25,22 @@ def run(args: argparse.Namespace) -> int:
     data_cfg = cfg.DATA_CONFIG if "DATA_CONFIG" in cfg else cfg
     data_path = Path(data_cfg.DATA_PATH)
     print(f"profile {cfg.get('PROFILE', 'paper')}, data {data_path}")
-    sources = {split: split_sources(data_cfg, split, data_path) for split in ("train", "val", "test")}
+    pretraining, _ = split_stages(cfg) if "DATA_CONFIG" in cfg else (None, cfg)
+    splits = [("train", data_cfg), ("val", data_cfg), ("test", data_cfg)]
+    if pretraining is not None:  # the sources of a pre-training stage (runtime.pretrain) are read too
+        splits = [("pretrain train", pretraining.DATA_CONFIG), ("pretrain val", pretraining.DATA_CONFIG), *splits]
+    sources = [(label, stage_cfg, split_sources(stage_cfg, label.split()[-1], data_path))
+               for label, stage_cfg in splits]
     infos = {}
-    for source in (source for split_list in sources.values() for source in split_list):
+    for source in (source for _, _, split_list in sources for source in split_list):
         if source.root not in infos:
             infos[source.root] = create_domain_infos(source, force=args.force)
-    for split, split_list in sources.items():
+    for label, stage_cfg, split_list in sources:
         for source in split_list:
             frame_ids = [info["frame_id"] for info in infos[source.root]]
-            chosen = set(source_split(source, frame_ids, split, data_cfg, source.root / INFO_FILE))
+            split = label.split()[-1]
+            chosen = set(source_split(source, frame_ids, split, stage_cfg, source.root / INFO_FILE))
             boxes = sum(len(info["annos"]["name"]) for info in infos[source.root] if info["frame_id"] in chosen)
-            print(f"{split:>5}  {source.name:<12} {len(chosen):6d} of {len(frame_ids):6d} frames, {boxes:7d} boxes  "
-                  f"({source.root})")
+            print(f"{label:>14}  {source.name:<12} {len(chosen):6d} of {len(frame_ids):6d} frames, {boxes:7d} "
+                  f"boxes  ({source.root})")
     return 0

@@ -32,6 +32,30 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
                              "loading in the training process is fastest; up to 4 with CUDA)")
 
 
+def add_experiment_arguments(parser: argparse.ArgumentParser, runs: str) -> None:
+    """The options of commands that train many models (`reproduce`, `sweep`): --seeds, --out, --data-root, --jobs,
+    --workers; `runs` names what --jobs counts."""
+    parser.add_argument("--seeds", type=int, default=1, help="training seeds 0..K-1; the report gives mean and std")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default output/<command>/...); "
+                                                               "finished models in it are reused")
+    parser.add_argument("--data-root", type=Path, default=None,
+                        help="folder of the data sources (default: the cfgs' DATA_PATH, data/memslidar)")
+    parser.add_argument("--jobs", type=int, default=None,
+                        help=f"{runs} trained at once, each in its own process (default on a CPU: five, or one per "
+                             f"core if more; 1 on a GPU)")
+    add_workers(parser)
+
+
+def experiment_command(words: list[str], args: argparse.Namespace) -> str:
+    """The command line of a `reproduce` or `sweep` call (`words`, then its experiment options and --set), for the
+    report."""
+    return " ".join([*words, f"--profile {args.profile}", f"--seeds {args.seeds}",
+                     *([f"--out {args.out}"] if args.out else []),
+                     *([f"--data-root {args.data_root}"] if args.data_root else []),
+                     *([f"--jobs {args.jobs}"] if args.jobs else []),
+                     *(["--set", *args.set_cfgs] if args.set_cfgs else [])])
+
+
 def add_openpcdet_arguments(parser: argparse.ArgumentParser) -> None:
     """The flags `memslidar train` and `memslidar test` share (OpenPCDet's tools/train.py and tools/test.py names;
     --cfg is an alias of --cfg_file), plus --profile."""

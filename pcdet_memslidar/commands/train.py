@@ -18,6 +18,7 @@ from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoint
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.experiment import ap_line, option_count, scalars, test_split
 from pcdet_memslidar.runtime.predict import predict, test_loader
+from pcdet_memslidar.runtime.pretrain import split_stages
 from pcdet_memslidar.runtime.train import train
 
 SEED = 666  # OpenPCDet's fixed seed (plus the rank)
@@ -46,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg, process, output_dir = setup_experiment(args)
-    cfg.OPTIMIZATION.NUM_EPOCHS = epochs = option_count(args.epochs, "--epochs", "NUM_EPOCHS", cfg)
+    cfg.OPTIMIZATION.NUM_EPOCHS = option_count(args.epochs, "--epochs", "NUM_EPOCHS", cfg)
     logger = create_logger(output_dir / f"log_train_{datetime.datetime.now():%Y%m%d-%H%M%S}.txt", rank=process.rank)
     logger.info("**********************Start logging**********************")
     logger.info(f"device {process.device}, {process.world_size} process(es), {process.threads} torch threads each, "
@@ -80,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
           use_amp=args.use_amp)
     logger.info(f"training done in {time.time() - started:.1f} s")
 
-    first_epoch = max(epochs - args.num_epochs_to_eval, 0) if args.num_epochs_to_eval else epochs
+    last = split_stages(cfg)[1].OPTIMIZATION.NUM_EPOCHS  # of the fine-tuning stage for a config with PRETRAIN
+    first_epoch = max(last - args.num_epochs_to_eval, 0) if args.num_epochs_to_eval else last
     eval_dir = output_dir / "eval" / "eval_with_train"
     eval_tb = SummaryWriter(str(eval_dir / "tensorboard_val")) if process.rank == 0 else None
     for ckpt in list_checkpoints(output_dir / "ckpt"):

@@ -1,5 +1,5 @@
-"""Figures (PNG, matplotlib without pyplot): one frame with its boxes; and for the reproduction Fig. 3-style
-example frames, precision-recall curves of M1-M4, AP against inference time, training curves.
+"""Figures (PNG, matplotlib without pyplot): one frame with its boxes; for the reproduction Fig. 3-style example
+frames, precision-recall curves of M1-M4, AP against inference time, training curves; AP along a sweep.
 
 Boxes are OpenPCDet LiDAR boxes (M, 7) [x, y, z_center, dx, dy, dz, heading] in the normalised ground frame
 (x forward, y left, z up, ground at z = 0); points (N, 3+) [x, y, z, ...] [m].
@@ -272,6 +272,29 @@ def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Pat
     for ax in (loss_ax, ap_ax):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    return _save(figure, path)
+
+
+def plot_sweep(path: str | Path, lines: dict[str, list[tuple[float, list[float]]]], xlabel: str, title: str,
+               log_x: bool = False) -> Path:
+    """AP 3D R40 of a sweep: lines {name: [(x, [AP of each seed])]}; each seed a dot, the mean joined by a line
+    with the seeds' standard deviation (n - 1) as error bars."""
+    figure = Figure(figsize=(6.4, 4.2), layout="constrained")
+    ax = figure.add_subplot(1, 1, 1)
+    for (name, points), color in zip(lines.items(), ("tab:blue", "tab:orange", "tab:green", "tab:red")):
+        xs = np.array([x for x, _ in points], dtype=np.float64)
+        aps = [np.array([ap for ap in seeds if ap is not None], dtype=np.float64) for _, seeds in points]
+        means = np.array([values.mean() if values.size else np.nan for values in aps])
+        stds = np.array([values.std(ddof=1) if values.size > 1 else 0.0 for values in aps])
+        ax.errorbar(xs, means, yerr=stds, color=color, marker="o", markersize=4, capsize=3, label=name)
+        for x, values in zip(xs, aps):
+            ax.scatter(np.full(values.size, x), values, color=color, s=8, alpha=0.4)
+    if log_x:
+        ax.set_xscale("log")
+    ax.set(xlabel=xlabel, ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02), title=title)
+    ax.title.set_fontsize(9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
     return _save(figure, path)
 
 

@@ -165,7 +165,8 @@ def add_figures(results: dict, runs: dict, gt_dir: Path, velodyne_dir: Path, out
                                   "score_threshold": SCORE_THRESHOLD} for e in examples]
 
 
-def _ap(mean: float | None, std: float | None, seeds: int) -> str:
+def ap_text(mean: float | None, std: float | None, seeds: int) -> str:
+    """'0.291 ± 0.060' over several seeds, '0.291' for one, 'n/a' where undefined."""
     if mean is None:
         return "n/a"
     return f"{mean:.3f} ± {std:.3f}" if seeds > 1 else f"{mean:.3f}"
@@ -246,6 +247,23 @@ def order_statement(results: dict, metric: str = HEADLINE) -> str:
     return text
 
 
+def finetune_statement(results: dict, metric: str = HEADLINE) -> str:
+    """M5 (pre-trained on sim, fine-tuned on real) against M3 (sim and real mixed) at the same compute; '' without
+    both."""
+    models, seeds = results["models"], len(results["seeds"])
+    if "M5" not in models or "M3" not in models:
+        return ""
+    m5, m3 = models["M5"]["mean"].get(metric), models["M3"]["mean"].get(metric)
+    if m5 is None or m3 is None:
+        return "M5 against M3 cannot be compared: one of them has no AP."
+    spread = max(models["M5"]["std"][metric], models["M3"]["std"][metric])
+    verdict = "above" if m5 > m3 else "below" if m5 < m3 else "level with"
+    within = f"; the gap is within one standard deviation of the {seeds} seeds" if seeds > 1 and abs(m5 - m3) <= \
+        spread else ""
+    return (f"Pre-training on sim and fine-tuning on real (M5, {m5:.3f}) is {verdict} mixing them (M3, {m3:.3f}) at "
+            f"the same number of optimizer steps{within}.")
+
+
 def table3(results: dict) -> list[str]:
     """Markdown lines of Table 3: AP at IoU 0.5 (3D and BEV, R40 and R11), gain over M1, ms/frame, the paper's AP."""
     models, seeds = results["models"], len(results["seeds"])
@@ -256,10 +274,10 @@ def table3(results: dict) -> list[str]:
         mean, std = model["mean"], model["std"]
         ms = mean.get("ms_per_frame")
         rows.append([name if name in PAPER_AP else f"{name} (not in the paper)", "SECOND",
-                     _ap(mean.get(HEADLINE), std.get(HEADLINE), seeds),
+                     ap_text(mean.get(HEADLINE), std.get(HEADLINE), seeds),
                      f"{PAPER_AP[name]:.2f}" if name in PAPER_AP else "-",
                      _pp(gains[name]), _pp(paper_gain.get(name)),
-                     *(_ap(mean.get(key), std.get(key), seeds) for key in TABLE3_COLUMNS[1:]),
+                     *(ap_text(mean.get(key), std.get(key), seeds) for key in TABLE3_COLUMNS[1:]),
                      "n/a" if ms is None else f"{ms:.1f}"])
     return _table(["Model", "Architecture", "AP 3D R40", "paper AP", "gain over M1 (pp)", "paper gain (pp)",
                    "AP 3D R11", "AP BEV R40", "AP BEV R11", "ms/frame"], rows)
@@ -270,7 +288,7 @@ def bin_table(results: dict) -> list[str]:
     models, seeds = results["models"], len(results["seeds"])
     labels = _bin_labels(models)
     num_gt = next(iter(models.values()))["runs"][0]["num_gt"]
-    rows = [[name, *(_ap(model["mean"].get(f"{HEADLINE}_{label}"), model["std"].get(f"{HEADLINE}_{label}"), seeds)
+    rows = [[name, *(ap_text(model["mean"].get(f"{HEADLINE}_{label}"), model["std"].get(f"{HEADLINE}_{label}"), seeds)
                      for label in labels)] for name, model in models.items()]
     return _table(["Model", *(f"{label} ({num_gt.get(label, 0)} gt)" for label in labels)], rows)
 
@@ -362,6 +380,7 @@ def render_report(results: dict) -> str:
         "",
         *table3(results), "",
         order_statement(results), "",
+        *([finetune_statement(results), ""] if finetune_statement(results) else []),
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",
         *bin_table(results), "",
         *_figure_lines(results),
@@ -375,14 +394,14 @@ def render_report(results: dict) -> str:
     return "\n".join(lines)
 
 
-def _json_safe(value):
+def json_safe(value):
     """`value` with NaN floats as None and numpy scalars / arrays as Python values."""
     if isinstance(value, dict):
-        return {str(key): _json_safe(item) for key, item in value.items()}
+        return {str(key): json_safe(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
+        return [json_safe(item) for item in value]
     if isinstance(value, np.ndarray):
-        return _json_safe(value.tolist())
+        return json_safe(value.tolist())
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and math.isnan(value):
@@ -393,7 +412,7 @@ def _json_safe(value):
 def write_report(results: dict, out_dir: str | Path) -> tuple[Path, Path]:
     """Write `out_dir`/results.json and `out_dir`/report.md atomically; returns their paths."""
     out_dir = Path(out_dir)
-    results = _json_safe(results)
+    results = json_safe(results)
     json_path, report_path = out_dir / "results.json", out_dir / "report.md"
     write_text(json_path, json.dumps(results, indent=2) + "\n")
     write_text(report_path, render_report(results))

@@ -6,6 +6,7 @@
 """
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -15,12 +16,18 @@ from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.runtime.common import set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
 from pcdet_memslidar.runtime.experiment import Process, local_process
+from pcdet_memslidar.runtime.pretrain import PRETRAIN_DIR, split_stages
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 
 
 def final_checkpoint(cfg, run_dir: Path) -> Path:
-    """The checkpoint a finished training of cfg leaves in run_dir: ckpt/checkpoint_epoch_<NUM_EPOCHS>.pth."""
-    return Path(run_dir) / "ckpt" / f"checkpoint_epoch_{cfg.OPTIMIZATION.NUM_EPOCHS}.pth"
+    """The checkpoint a finished training of cfg leaves in run_dir: ckpt/checkpoint_epoch_<NUM_EPOCHS>.pth (of the
+    fine-tuning stage for a config with PRETRAIN)."""
+    return Path(run_dir) / "ckpt" / f"checkpoint_epoch_{split_stages(cfg)[1].OPTIMIZATION.NUM_EPOCHS}.pth"
+
+
+def _shifted_epoch(on_epoch, shift: int, epoch: int, *rest) -> None:
+    on_epoch(epoch + shift, *rest)
 
 
 def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int | None = None, workers: int = 0,
@@ -28,7 +35,9 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
           val_interval: int = 1, on_epoch=None, tb_log=None, **loop_options) -> Path:
     """Train cfg's detector for OPTIMIZATION.NUM_EPOCHS epochs of BATCH_SIZE_PER_GPU frames per process into
     run_dir/ckpt, resuming from `resume_from` or else the newest checkpoint there; returns the final checkpoint
-    (when it exists already and no `resume_from` is given, nothing is trained).
+    (when it exists already and no `resume_from` is given, nothing is trained). A config with PRETRAIN trains its
+    two stages (runtime.pretrain; stage 1 is skipped when `pretrained_model` is given) and on_epoch counts their
+    epochs on.
 
     process: where it runs (default: this process alone); with process.dist the model is wrapped in
     DistributedDataParallel. seed: seeds Python, numpy and torch (plus the rank) and the data order (None: random).
@@ -38,6 +47,12 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     (checkpoint intervals, log interval, tqdm, amp); tb_log gets its per-iteration scalars.
     """
     process = process or local_process()
+    pretraining, cfg = split_stages(cfg)
+    if pretraining is not None and pretrained_model is None:  # stage 1 of pre-training then fine-tuning (M5)
+        pretrained_model = train(pretraining, Path(run_dir) / PRETRAIN_DIR, logger, process, seed, workers,
+                                 sync_bn=sync_bn, val_interval=val_interval, on_epoch=on_epoch, **loop_options)
+        if on_epoch is not None:  # stage 2's epochs continue stage 1's
+            on_epoch = functools.partial(_shifted_epoch, on_epoch, pretraining.OPTIMIZATION.NUM_EPOCHS)
     final = final_checkpoint(cfg, run_dir)
     if final.is_file() and resume_from is None:
         logger.info(f"reusing {final}: the training has reached its last epoch")
