@@ -1,6 +1,6 @@
 """Pre-training, then fine-tuning (M5): a config with a PRETRAIN block trains in two stages within its own epochs.
 
-    PRETRAIN: {SOURCES: [{NAME: sim, RATIO: 1.0}], EPOCH_SHARE: 0.5, FINETUNE_LR_SCALE: 0.5}
+    PRETRAIN: {SOURCES: [{NAME: sim, RATIO: 1.0}], EPOCH_SHARE: 0.5, FINETUNE_LR_SCALE: 1.0}
 
 Stage 1 trains the config on PRETRAIN.SOURCES (its MIX with those sources: the same TOTAL and 70/30 split) for
 round(NUM_EPOCHS x EPOCH_SHARE) epochs into <run_dir>/pretrain. Stage 2 trains the config's own MIX for the other

@@ -10,7 +10,7 @@ from pcdet_memslidar.runtime.pretrain import split_stages
 
 
 def test_stages_share_the_epochs_and_scale_the_fine_tuning_lr(tmp_path):
-    cfg = model_config("M5", "quick", tmp_path)  # 6 epochs, LR 0.002
+    cfg = model_config("M5", "quick", tmp_path, ["PRETRAIN.FINETUNE_LR_SCALE", "0.5"])  # 6 epochs, LR 0.002
     pretraining, finetuning = split_stages(cfg)
     assert [entry.NAME for entry in pretraining.DATA_CONFIG.MIX.SOURCES] == ["sim"]
     assert [entry.NAME for entry in finetuning.DATA_CONFIG.MIX.SOURCES] == ["real"]
