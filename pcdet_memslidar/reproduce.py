@@ -290,23 +290,39 @@ def default_jobs(models: int = len(RUNS)) -> int:
     return 1 if torch.cuda.is_available() else max(available_cores(), models)
 
 
+def check_run_options(seeds: int, jobs: int | None, workers: int, models: int) -> int:
+    """The number of runs to train at once (`jobs`; None: default_jobs(models)) after checking --seeds, --jobs and
+    --workers; ConfigError naming the option and its value otherwise."""
+    if seeds < 1:
+        raise ConfigError(f"--seeds must be >= 1, got {seeds}")
+    jobs = default_jobs(models) if jobs is None else jobs
+    if jobs < 1:
+        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+    if workers < 0:
+        raise ConfigError(f"--workers must be >= 0 (0: load data in the training process), got {workers}")
+    return jobs
+
+
+def training_jobs(cfgs: dict, seeds: int, runs_dir: Path, gt_dir: Path, out: Path, workers: int,
+                  parallel: int) -> list[dict]:
+    """run_jobs' jobs: every config of cfgs {name: cfg} for seeds 0..seeds-1, seed by seed, each in
+    runs_dir/<name>/seed_<k> on its share of the cores (`parallel` runs at once)."""
+    return [{"model": name, "seed": seed, "cfg": cfg, "run_dir": runs_dir / name / f"seed_{seed}", "gt_dir": gt_dir,
+             "out": out, "workers": workers, "threads": max(1, available_cores() // parallel)}
+            for seed in range(seeds) for name, cfg in cfgs.items()]
+
+
 def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None, workers: int = 0,
               command: str = "", set_cfgs: list[str] | None = None, jobs: int | None = None,
               benchmark_file: Path | None = None, models: tuple[str, ...] = RUNS) -> dict:
     """Run the whole reproduction (module docstring) of `models` (of KNOWN_RUNS) and return the results dict written
     to out/results.json. benchmark_file: tools/benchmark_model.py's results, drawn beside this run's models in the
     AP-vs-time figure when it exists."""
-    if seeds < 1:
-        raise ConfigError(f"--seeds must be >= 1, got {seeds}")
     unknown = [model for model in models if model not in KNOWN_RUNS]
     if unknown or not models:
         raise ConfigError(f"--models {' '.join(models)}: choose from {' '.join(KNOWN_RUNS)}")
     models = tuple(model for model in KNOWN_RUNS if model in models)
-    jobs = default_jobs(len(models)) if jobs is None else jobs
-    if jobs < 1:
-        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
-    if workers < 0:
-        raise ConfigError(f"--workers must be >= 0 (0: load data in the training process), got {workers}")
+    jobs = check_run_options(seeds, jobs, workers, len(models))
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
     cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in models}
     needed = frames_needed(cfgs)
@@ -321,9 +337,7 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     test_layout = KittiLayout(needed[test].root)
     gt_dir, velodyne_dir = test_layout.training / "label_2", test_layout.training / "velodyne"
     parallel = min(jobs, seeds * len(models))
-    todo = [{"model": model, "seed": seed, "cfg": cfg, "run_dir": out / "models" / model / f"seed_{seed}",
-             "gt_dir": gt_dir, "out": out, "workers": workers,
-             "threads": max(1, available_cores() // parallel)} for seed in range(seeds) for model, cfg in cfgs.items()]
+    todo = training_jobs(cfgs, seeds, out / "models", gt_dir, out, workers, parallel)
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)
     runs: dict[str, list[dict]] = {model: [] for model in models}

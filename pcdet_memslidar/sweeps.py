@@ -28,10 +28,18 @@ from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_sweep
 from pcdet_memslidar.evaluation.report import HEADLINE, ap_text, environment, json_safe, summarise_runs
 from pcdet_memslidar.io.layout import KittiLayout
-from pcdet_memslidar.reproduce import StageClock, default_jobs, frames_needed, model_config, prepare_data, run_jobs
+from pcdet_memslidar.reproduce import (
+    RUNS,
+    StageClock,
+    check_run_options,
+    frames_needed,
+    model_config,
+    prepare_data,
+    run_jobs,
+    training_jobs,
+)
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.utils.atomic import refuse_overlap, write_text
-from pcdet_memslidar.utils.cores import available_cores
 
 BASE_MODEL = "M3"  # the sweeps change only the training set of cfgs/m3.yaml
 SIM, REAL = "sim", "real"
@@ -130,11 +138,7 @@ def sweep(kind: str, profile: str, seeds: int, out: Path, data_root: Path | None
     0..seeds-1 into `out`; returns the results dict written to out/results.json."""
     if kind not in SWEEPS:
         raise ConfigError(f"unknown sweep '{kind}'; known sweeps: {', '.join(SWEEPS)}")
-    if seeds < 1:
-        raise ConfigError(f"--seeds must be >= 1, got {seeds}")
-    jobs = default_jobs() if jobs is None else jobs
-    if jobs < 1:
-        raise ConfigError(f"--jobs must be >= 1, got {jobs}")
+    jobs = check_run_options(seeds, jobs, workers, len(RUNS))
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
     make_points, default_grid, xlabel, log_x = SWEEPS[kind]
     grid = list(default_grid if grid is None else grid)
@@ -154,9 +158,7 @@ def sweep(kind: str, profile: str, seeds: int, out: Path, data_root: Path | None
     test = base.DATA_CONFIG.TEST_SOURCE.NAME
     gt_dir = KittiLayout(needed[test].root).training / "label_2"
     parallel = min(jobs, seeds * len(points))
-    todo = [{"model": point.name, "seed": seed, "cfg": cfgs[point.name], "gt_dir": gt_dir, "out": out,
-             "run_dir": out / "points" / point.name / f"seed_{seed}", "workers": workers,
-             "threads": max(1, available_cores() // parallel)} for seed in range(seeds) for point in points]
+    todo = training_jobs(cfgs, seeds, out / "points", gt_dir, out, workers, parallel)
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)
 
@@ -171,13 +173,13 @@ def sweep(kind: str, profile: str, seeds: int, out: Path, data_root: Path | None
                "overrides": list(set_cfgs or []), "seeds": list(range(seeds)), "command": command,
                "date": started.isoformat(timespec="seconds"), "jobs": parallel, "environment": environment(),
                "test_domain": test, "xlabel": xlabel, "rows": rows}
-    if kind == "real-budget":
-        groups = list(dict.fromkeys(row["group"] for row in rows))
-        curve = {group: [(row["x"], row["mean"]) for row in rows if row["group"] == group] for group in groups}
-        results["replaced"] = annotations_replaced(curve[groups[0]], curve[groups[1]])
+    lines = {group: [row for row in rows if row["group"] == group] for group in dict.fromkeys(r["group"] for r in rows)}
+    if kind == "real-budget":  # lines: real only, then real + synthetic
+        real_only, with_sim = ([(row["x"], row["mean"]) for row in line] for line in lines.values())
+        results["replaced"] = annotations_replaced(real_only, with_sim)
     with clock("figure"):
-        plot_sweep(out / f"{kind}.png", {group: [(row["x"], row["per_seed"]) for row in rows if row["group"] == group]
-                                         for group in dict.fromkeys(row["group"] for row in rows)},
+        plot_sweep(out / f"{kind}.png", {group: [(row["x"], row["per_seed"]) for row in line]
+                                         for group, line in lines.items()},
                    xlabel, f"AP on the {test} split: {kind} sweep ({profile} profile, {seeds} seed(s))", log_x)
     results["figure"] = f"{kind}.png"
     results["stages"] = clock.seconds

@@ -358,6 +358,7 @@ def render_report(results: dict) -> str:
     seed_note = (f"mean ± standard deviation over {len(seeds)} training seeds {seeds}" if len(seeds) > 1
                  else f"one training seed ({seeds[0]})")
     overrides = f" with overrides `{' '.join(results['overrides'])}`" if results.get("overrides") else ""
+    finetune = finetune_statement(results)
     lines = [
         "# M1-M4 reproduction report", "",
         f"- profile: **{results['profile']}**{overrides}; {seed_note}",
@@ -380,7 +381,7 @@ def render_report(results: dict) -> str:
         "",
         *table3(results), "",
         order_statement(results), "",
-        *([finetune_statement(results), ""] if finetune_statement(results) else []),
+        *([finetune, ""] if finetune else []),
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",
         *bin_table(results), "",
         *_figure_lines(results),
