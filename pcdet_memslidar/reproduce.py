@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import json
+import math
 import multiprocessing
 import os
 import time
@@ -290,6 +291,14 @@ def default_jobs(models: int = len(RUNS)) -> int:
     return 1 if torch.cuda.is_available() else max(available_cores(), models)
 
 
+def runs_at_once(runs: int, jobs: int) -> int:
+    """How many of `runs` equal runs to train at once, at most `jobs`: the fewest per wave that still takes the
+    ceil(runs / jobs) waves, so the last wave is as full as the others (11 runs, 5 jobs: 4 + 4 + 3 rather than
+    5 + 5 + 1, where one run would train alone on one core while the others idle)."""
+    waves = math.ceil(runs / jobs)
+    return math.ceil(runs / waves)
+
+
 def check_run_options(seeds: int, jobs: int | None, workers: int, models: int) -> int:
     """The number of runs to train at once (`jobs`; None: default_jobs(models)) after checking --seeds, --jobs and
     --workers; ConfigError naming the option and its value otherwise."""
@@ -336,7 +345,7 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     test = next(iter(cfgs.values())).DATA_CONFIG.TEST_SOURCE.NAME  # 3. train and evaluate M1-M4 and the oracle
     test_layout = KittiLayout(needed[test].root)
     gt_dir, velodyne_dir = test_layout.training / "label_2", test_layout.training / "velodyne"
-    parallel = min(jobs, seeds * len(models))
+    parallel = runs_at_once(seeds * len(models), jobs)
     todo = training_jobs(cfgs, seeds, out / "models", gt_dir, out, workers, parallel)
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)

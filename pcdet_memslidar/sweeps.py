@@ -36,6 +36,7 @@ from pcdet_memslidar.reproduce import (
     model_config,
     prepare_data,
     run_jobs,
+    runs_at_once,
     training_jobs,
 )
 from pcdet_memslidar.runtime.common import create_logger
@@ -157,7 +158,7 @@ def sweep(kind: str, profile: str, seeds: int, out: Path, data_root: Path | None
 
     test = base.DATA_CONFIG.TEST_SOURCE.NAME
     gt_dir = KittiLayout(needed[test].root).training / "label_2"
-    parallel = min(jobs, seeds * len(points))
+    parallel = runs_at_once(seeds * len(points), jobs)
     todo = training_jobs(cfgs, seeds, out / "points", gt_dir, out, workers, parallel)
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)

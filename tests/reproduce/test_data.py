@@ -7,7 +7,15 @@ import pytest
 from pcdet_memslidar.datasets.mixing import Source, split_sources
 from pcdet_memslidar.errors import ConfigError, OutputError
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
-from pcdet_memslidar.reproduce import RUNS, check_run_config, frames_needed, model_config, prepare_domain, reproduce
+from pcdet_memslidar.reproduce import (
+    RUNS,
+    check_run_config,
+    frames_needed,
+    model_config,
+    prepare_domain,
+    reproduce,
+    runs_at_once,
+)
 from pcdet_memslidar.sim.writer import SETTINGS_FILE
 
 
@@ -92,3 +100,9 @@ def test_out_that_holds_the_data_and_bad_counts_are_refused_before_anything_is_w
 def test_reproduce_checks_its_configs_as_train_does(tmp_path, key, value, message):
     with pytest.raises(ConfigError, match=message):
         model_config("M3", "smoke", tmp_path, [key, value])
+
+
+@pytest.mark.parametrize("runs, jobs, at_once", [(5, 5, 5), (11, 5, 4), (8, 5, 4), (6, 5, 3), (15, 5, 5), (5, 2, 2),
+                                                 (1, 5, 1), (7, 1, 1), (12, 12, 12)])
+def test_runs_at_once_fills_the_last_wave(runs, jobs, at_once):
+    assert runs_at_once(runs, jobs) == at_once
