@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("eval", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
     "reproduce": ("reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
     "sweep": ("sweep", "the paper's open questions: AP against the sim/real ratio or the real-annotation budget"),
+    "detect": ("detect", "a trained detector on recordings: detections, tracks and zone events (no raw points)"),
 }
 
 

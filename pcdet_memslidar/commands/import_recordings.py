@@ -6,9 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from pcdet_memslidar.commands.options import add_mount_arguments
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
-from pcdet_memslidar.geometry.mount import Mount
-from pcdet_memslidar.io import ground
 from pcdet_memslidar.io.importer import FORMATS, REPORT_NAME, import_dataset
 
 
@@ -33,23 +32,13 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _mount_argument(text: str) -> Mount:
-    try:
-        return ground.parse_mount(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", required=True, choices=FORMATS, help="source format")
     parser.add_argument("--src", required=True, type=Path,
                         help="a file, a folder of files, or a CVAT export (folder or .zip)")
     parser.add_argument("--out", type=Path, default=Path("data/memslidar/real"),
                         help="dataset folder to create (default: %(default)s)")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--mount", type=_mount_argument, metavar="H,TILT[,ROLL]",
-                       help="sensor height [m] and tilt [deg] (> 0 looks down) to remove")
-    where.add_argument("--estimate-ground", action="store_true", help="estimate the mount from the ground plane")
+    add_mount_arguments(parser)
     parser.add_argument("--skip-unknown-labels", action="store_true",
                         help="drop (and count) cuboids whose label is not person / pedestrian instead of failing")
     parser.add_argument("--kitti-raw-convention", choices=("cvat", "kitti"), default="cvat",

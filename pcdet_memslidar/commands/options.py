@@ -1,11 +1,13 @@
-"""Options that several commands take, added the same way everywhere (--profile, --set, --workers), OpenPCDet's
-flags of `memslidar train` and `memslidar test`, and the experiment set-up those flags ask for."""
+"""Options that several commands take, added the same way everywhere (--profile, --set, --workers, --mount),
+OpenPCDet's flags of `memslidar train` and `memslidar test`, and the experiment set-up those flags ask for."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
 from pcdet_memslidar.config import load_config
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io import ground
 from pcdet_memslidar.runtime.common import default_workers
 from pcdet_memslidar.runtime.experiment import Process, option_count, output_folder, start_process
 
@@ -30,6 +32,22 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=default_workers(),
                         help="data-loader worker processes per model (default here %(default)s: 0 on a CPU, where "
                              "loading in the training process is fastest; up to 4 with CUDA)")
+
+
+def _mount(text: str) -> Mount:
+    try:
+        return ground.parse_mount(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_mount_arguments(parser: argparse.ArgumentParser) -> None:
+    """--mount H,TILT[,ROLL] or --estimate-ground: how recordings are brought into the ground frame (neither: they
+    already are)."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--mount", type=_mount, metavar="H,TILT[,ROLL]",
+                       help="sensor height [m] and tilt [deg] (> 0 looks down) to remove")
+    where.add_argument("--estimate-ground", action="store_true", help="estimate the mount from the ground plane")
 
 
 def add_experiment_arguments(parser: argparse.ArgumentParser, runs: str) -> None:

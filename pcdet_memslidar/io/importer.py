@@ -40,11 +40,13 @@ COMMAND = "memslidar import"  # the owner of the folders it writes (see utils.at
 
 @dataclass
 class SourceFrame:
-    """One frame to import: its name in the source, a loader of its cloud and its cuboids (None: no labels)."""
+    """One frame to import: its name in the source, a loader of its cloud, its cuboids (None: no labels) and its
+    start time [s] since the recording's first frame (None: the format does not say)."""
 
     name: str
     load: Callable[[], LoadedCloud]
     cuboids: cvat.CvatFrame | None = None
+    time_s: float | None = None
 
 
 def _bfpc_frames(src: Path) -> list[SourceFrame]:
@@ -56,7 +58,8 @@ def _bfpc_frames(src: Path) -> list[SourceFrame]:
             strongest = frame.first_returns()
             cloud = LoadedCloud(points=frame.points[strongest], time=frame.time_offset[frame.return_pulse[strongest]],
                                 dropped=int((~frame.returned).sum()), has_intensity=True)
-            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud))
+            time_s = (frame.start_time_ns - recording.frames[0].start_time_ns) * 1e-9
+            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud, time_s=time_s))
     return frames
 
 

@@ -1,0 +1,57 @@
+"""`memslidar detect` / tools/demo.py: a trained detector on recordings, with tracks and zone events
+(monitor.detect). Takes OpenPCDet's demo.py flags (--cfg_file, --data_path, --ckpt, --ext) as well."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from pcdet_memslidar.commands.options import add_mount_arguments, add_profile, add_set
+from pcdet_memslidar.config import load_config
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.monitor.detect import FORMATS, FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect
+from pcdet_memslidar.monitor.zones import read_zones
+from pcdet_memslidar.runtime.common import create_logger
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cfg_file", "--cfg", dest="cfg_file", required=True, help="the detector's config (YAML)")
+    parser.add_argument("--ckpt", required=True, help="its checkpoint (.pth)")
+    parser.add_argument("--src", "--data_path", dest="src", required=True, type=Path,
+                        help="a recording (.bfpc, many frames), a frame file, a folder of frames or a KITTI-layout "
+                             "folder")
+    parser.add_argument("--format", "--ext", dest="fmt", default="auto", type=lambda text: text.lstrip("."),
+                        help=f"one of {', '.join(FORMATS)} (default auto: a KITTI layout, or the files' suffix); "
+                             "--ext .bin as in OpenPCDet's demo.py")
+    add_mount_arguments(parser)
+    parser.add_argument("--zones", type=Path, default=None, help="zone file (YAML): named polygons with a level")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default output/detect/<src name>)")
+    parser.add_argument("--batch_size", type=int, default=4, help="frames per forward pass (default %(default)s)")
+    parser.add_argument("--frame-period", type=float, default=FRAME_PERIOD_S,
+                        help="seconds between frames of formats without time stamps (default %(default)s: the Cube 1 "
+                             "at 200 lines)")
+    parser.add_argument("--save-points", action="store_true",
+                        help="also write each frame's points (points/*.bin); by default only detections are kept")
+    parser.add_argument("--plot", action="store_true", help="a bird's-eye PNG per frame (plots/*.png)")
+    add_profile(parser)
+    add_set(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.fmt not in FORMATS:
+        raise ConfigError(f"--format {args.fmt!r}: use one of {', '.join(FORMATS)}")
+    if args.batch_size < 1 or not args.frame_period > 0:
+        raise ConfigError("--batch_size must be >= 1 and --frame-period > 0 s")
+    cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
+    out = args.out or Path("output") / "detect" / args.src.name.split(".")[0]
+    options = DetectOptions(src=args.src, out=out, fmt=args.fmt, mount=args.mount,
+                            estimate_ground=args.estimate_ground,
+                            zones=read_zones(args.zones) if args.zones else None, batch_size=args.batch_size,
+                            frame_period_s=args.frame_period, save_points=args.save_points, plot=args.plot)
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    summary = detect(cfg, args.ckpt, options, create_logger(), device)
+    print(f"{summary['frames']} frames: {summary['detections']} detections, {summary['tracks']} tracks, "
+          f"{summary['events']} zone events; {summary['frames_per_s']:.2f} frames/s on {device}")
+    print(f"written: {out} (detections.jsonl, labels/, {SUMMARY_FILE})")
+    return 0

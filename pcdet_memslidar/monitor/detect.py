@@ -1,0 +1,235 @@
+"""`memslidar detect`: a trained detector on recordings, with tracks and zone events (OpenPCDet's demo.py, for
+industrial safety).
+
+    list the recording's frames (io.importer's readers: .bfpc, .pcd, .ply, .npy, .bin, or a KITTI-layout folder)
+    -> the mount: given, estimated from the ground plane, or none (frames already in the ground frame)
+    -> per batch of frames: normalise to the ground frame, voxelise (the config's DATA_PROCESSOR), infer
+    -> per frame, in time order: track (monitor.tracker), zones and events (monitor.zones)
+    -> write labels/<frame>.txt (KITTI with scores), detections.jsonl and summary.json (and on request plots/ and
+       points/) into a temporary folder that replaces --out only when every frame succeeded
+
+Raw points are written only with save_points: by default only detections leave (the paper's GDPR argument: boxes
+and tracks, not the gait in the points).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pcdet_memslidar.datasets.dataset import DatasetTemplate
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.evaluation.figures import plot_tracks_frame
+from pcdet_memslidar.geometry.calibration import Calibration
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io import ground, kitti
+from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
+from pcdet_memslidar.io.pointclouds import SUFFIXES
+from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
+from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
+from pcdet_memslidar.runtime.checkpoint import load_params_from_file
+from pcdet_memslidar.sim.pattern import get_pattern
+from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
+from pcdet_memslidar.utils.progress import progress_bar
+
+COMMAND = "memslidar detect"  # the owner of the folders it writes (utils.atomic.atomic_dir)
+FORMATS = ("auto", "bfpc", "pcd", "ply", "npy", "bin", "kitti")
+FRAME_PERIOD_S = get_pattern("cube1_paper").frame_period_s  # time between frames of formats without time stamps
+DETECTIONS_FILE, SUMMARY_FILE = "detections.jsonl", "summary.json"
+STAGES = ("read", "voxelise", "infer", "track", "write")
+
+
+@dataclass
+class DetectOptions:
+    """What `memslidar detect` was asked for (see commands/detect.py for the flags)."""
+
+    src: Path
+    out: Path
+    fmt: str = "auto"
+    mount: Mount | None = None
+    estimate_ground: bool = False
+    zones: list[Zone] | None = None
+    batch_size: int = 4
+    frame_period_s: float = FRAME_PERIOD_S
+    save_points: bool = False
+    plot: bool = False
+
+
+def resolve_format(src: Path, fmt: str) -> str:
+    """The format of `src` ('auto': a KITTI layout, or the suffix of the file or of the folder's files)."""
+    if fmt != "auto":
+        return fmt
+    if src.is_dir() and ((src / "training" / "velodyne").is_dir() or (src / "velodyne").is_dir()):
+        return "kitti"
+    files = [src] if src.is_file() else sorted(p for p in src.iterdir() if p.is_file()) if src.is_dir() else []
+    if not src.exists():
+        raise DataFormatError(src, "not found: give a recording file or a folder of frames (--src)")
+    suffixes = {p.suffix.lower() for p in files} & {".bfpc", *SUFFIXES}
+    if len(suffixes) != 1:
+        found = ", ".join(sorted({p.suffix or "(none)" for p in files})) or "nothing"
+        raise DataFormatError(src, f"cannot tell the format (found {found}): pass --format, one of "
+                                   f"{', '.join(FORMATS[1:])}")
+    return suffixes.pop()[1:]
+
+
+def recording_frames(src: Path, fmt: str) -> list[SourceFrame]:
+    """The frames of `src` in format `fmt` (FORMATS but 'auto': see resolve_format) in recording order."""
+    if fmt == "kitti":
+        velodyne = src / "training" / "velodyne" if (src / "training").is_dir() else src / "velodyne"
+        return list_frames("bin", velodyne)
+    return list_frames(fmt, src)
+
+
+class FrameVoxeliser(DatasetTemplate):
+    """The config's point encoding and voxelisation (DATA_PROCESSOR, test mode) for frames that are no dataset."""
+
+    def __init__(self, cfg, logger: logging.Logger):
+        super().__init__(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False, root_path=Path("."), logger=logger)
+
+    def __call__(self, points: np.ndarray, frame_id: str) -> dict:
+        return self.prepare_data({"points": points, "frame_id": frame_id})
+
+
+def load_detector(cfg, checkpoint: Path, voxeliser: FrameVoxeliser, device, logger) -> torch.nn.Module:
+    """SECOND of cfg with the weights of `checkpoint` (one of another config or grid is refused, naming it)."""
+    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=voxeliser).to(device)
+    model.profile = cfg.get("PROFILE")
+    load_params_from_file(model, checkpoint, logger, strict=True)
+    return model.eval()
+
+
+class Monitor:
+    """Tracks and zone events over a stream of frames' detections (the part of detect after the detector)."""
+
+    def __init__(self, tracker: TrackerConfig, zones: list[Zone]):
+        self.tracker, self.zones = Tracker(tracker), ZoneMonitor(zones)
+        self.track_ids: set[int] = set()  # every id given so far
+
+    def step(self, frame_id: str, source: str, time_s: float, boxes: np.ndarray, scores: np.ndarray
+             ) -> tuple[dict, np.ndarray, np.ndarray, list]:
+        """One frame's boxes (M, 7) and scores (M,) -> its detections.jsonl record, the kept boxes (K, 7) and scores
+        (K,) (score >= the tracker's min_score) and their track ids (K,) (None: tentative)."""
+        result = self.tracker.update(boxes, scores, time_s)
+        boxes, scores, ids = boxes[result.kept], scores[result.kept], result.detection_ids
+        zones_of, events = self.zones.update(time_s, ids, boxes, [track.track_id for track in result.lost])
+        self.track_ids.update(i for i in ids if i is not None)
+        record = {"frame": frame_id, "source": source, "time_s": round(time_s, 6),
+                  "detections": [{"box": [round(float(v), 4) for v in box], "score": round(float(score), 4),
+                                  "track_id": track_id, "zones": names}
+                                 for box, score, track_id, names in zip(boxes, scores, ids, zones_of)],
+                  "events": events}
+        return record, boxes, scores, ids
+
+
+def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.Logger | None = None,
+           device: str | torch.device = "cpu") -> dict:
+    """Run the detector of cfg / checkpoint over options.src and write options.out (module docstring); returns the
+    summary (also in out/summary.json)."""
+    logger = logger or logging.getLogger(__name__)
+    src, out = Path(options.src), Path(options.out)
+    refuse_overlap(out, [src], "--out")
+    check_output_folder(out, COMMAND)
+    fmt = resolve_format(src, options.fmt)
+    frames = recording_frames(src, fmt)
+    mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)
+    monitor = Monitor(TrackerConfig.from_block(cfg.get("TRACKER"), cfg.get("CFG_FILE", "the config")),
+                      options.zones or [])
+    voxeliser = FrameVoxeliser(cfg, logger)
+    model = load_detector(cfg, Path(checkpoint), voxeliser, device, logger)
+    seconds, counts = Counter(), Counter()
+    started = time.perf_counter()
+    with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines:
+        bar = progress_bar(total=len(frames), desc="detect", unit="frame")
+        for first in range(0, len(frames), options.batch_size):
+            batch = frames[first:first + options.batch_size]
+            clouds = _read(batch, mount, seconds, counts)  # 1. read and normalise
+            predictions = _infer(model, voxeliser, clouds, first, device, seconds, counts)  # 2. voxelise, infer
+            for index, frame, points, (boxes, scores) in zip(range(first, first + len(batch)), batch, clouds,
+                                                             predictions):
+                tick = time.perf_counter()  # 3. track, zones and events, in time order
+                time_s = frame.time_s if frame.time_s is not None else index * options.frame_period_s
+                record, boxes, scores, ids = monitor.step(f"{index:06d}", frame.name, time_s, boxes, scores)
+                tick = _lap(seconds, "track", tick)
+                lines.write(json.dumps(record) + "\n")  # 4. write
+                _write_frame(tmp, record, boxes, scores, ids, points, monitor, options,
+                             cfg.DATA_CONFIG.POINT_CLOUD_RANGE)
+                _lap(seconds, "write", tick)
+                counts["detections"] += len(boxes)
+                counts["events"] += len(record["events"])
+                bar.update()
+        bar.close()
+        wall = time.perf_counter() - started
+        summary = {"source": str(src), "format": fmt, "checkpoint": str(checkpoint),
+                   "config": cfg.get("CFG_FILE"), "profile": cfg.get("PROFILE"), "mount": mount_entry,
+                   "frames": len(frames), "frames_without_points": counts["empty"],
+                   "frames_without_voxels": counts["no_voxels"], "dropped_invalid_points": counts["dropped"],
+                   "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
+                   "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
+                   "device": str(device), "torch_threads": torch.get_num_threads(),
+                   "ms_per_frame": {stage: 1000 * seconds[stage] / max(1, len(frames)) for stage in STAGES},
+                   "frames_per_s": len(frames) / wall if wall > 0 else float("inf")}
+        write_text(tmp / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n")
+    return summary
+
+
+def _write_frame(folder: Path, record: dict, boxes: np.ndarray, scores: np.ndarray, ids: list, points: np.ndarray,
+                 monitor: Monitor, options: DetectOptions, point_cloud_range) -> None:
+    """labels/<frame>.txt, and with the options points/<frame>.bin and plots/<frame>.png."""
+    frame_id = record["frame"]
+    label = kitti.label_from_boxes(["Pedestrian"] * len(boxes), boxes, Calibration.virtual(), scores)
+    kitti.write_label(folder / "labels" / f"{frame_id}.txt", label)
+    if options.save_points:
+        kitti.write_points(folder / "points" / f"{frame_id}.bin", points)
+    if options.plot:
+        trails = {track.track_id: np.array([(x, y) for _, x, y in track.history]) for track in monitor.tracker.tracks
+                  if track.confirmed}
+        x0, y0, _, x1, y1, _ = point_cloud_range
+        plot_tracks_frame(folder / "plots" / f"{frame_id}.png", boxes, ids, trails,
+                          [(zone.name, zone.level, zone.polygon) for zone in options.zones or []], record["events"],
+                          f"frame {frame_id} ({record['source']}), t = {record['time_s']:.2f} s",
+                          (np.array([x0, x1]), np.array([y0, y1])))
+
+
+def _lap(seconds: Counter, stage: str, tick: float) -> float:
+    now = time.perf_counter()
+    seconds[stage] += now - tick
+    return now
+
+
+def _read(batch: list[SourceFrame], mount: Mount | None, seconds: Counter, counts: Counter) -> list[np.ndarray]:
+    """The batch's clouds (N, 4) in the ground frame; invalid points are counted (the readers drop them)."""
+    tick, clouds = time.perf_counter(), []
+    for frame in batch:
+        cloud = frame.load()
+        counts["dropped"] += cloud.dropped
+        counts["empty"] += len(cloud.points) == 0
+        clouds.append(cloud.points if mount is None else ground.normalise_points(cloud.points, mount))
+    _lap(seconds, "read", tick)
+    return clouds
+
+
+def _infer(model, voxeliser: FrameVoxeliser, clouds: list[np.ndarray], first: int, device, seconds: Counter,
+           counts: Counter) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(boxes (M, 7), scores (M,)) per cloud; a frame with no voxel in range gets none (counted)."""
+    tick = time.perf_counter()
+    samples = [voxeliser(points, f"{first + k:06d}") for k, points in enumerate(clouds)]
+    filled = [k for k, sample in enumerate(samples) if len(sample["voxels"])]
+    counts["no_voxels"] += len(samples) - len(filled)
+    tick = _lap(seconds, "voxelise", tick)
+    results = [(np.zeros((0, 7)), np.zeros(0))] * len(samples)
+    if filled:
+        batch = load_data_to_device(voxeliser.collate_batch([samples[k] for k in filled]), device)
+        with torch.no_grad():
+            pred_dicts, _ = model(batch)
+        for k, pred in zip(filled, pred_dicts):
+            results[k] = (pred["pred_boxes"].cpu().numpy().astype(np.float64).reshape(-1, 7),
+                          pred["pred_scores"].cpu().numpy().astype(np.float64))
+    _lap(seconds, "infer", tick)
+    return results

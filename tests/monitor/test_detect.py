@@ -1,0 +1,132 @@
+"""memslidar detect end to end on an untrained smoke-profile SECOND: what it writes, what it keeps from the user's
+data (nothing but detections unless asked), and its errors. What the detections are worth is not tested here."""
+import json
+import logging
+import runpy
+import sys
+
+import numpy as np
+import pytest
+
+from pcdet_memslidar import cli
+from pcdet_memslidar.config import load_config
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect
+from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
+
+REPO_CFG = "cfgs/m3.yaml"
+RECORDING = "blickfeld/cube1_sample_2020.bfpc"
+RECORDING_SHA256 = "f2fafd8bf6d63a6e579a8c510985f12c81feed00e783c2edcc6f54ab13a0f492"
+ZONES = "zones:\n  - {name: near, level: protective, polygon: [[2, -10], [12, -10], [12, 10], [2, 10]]}\n"
+
+
+def untrained_checkpoint(path, profile: str):
+    cfg = load_config(REPO_CFG, profile=profile)
+    model = build_network(cfg.MODEL, num_class=1, dataset=FrameVoxeliser(cfg, logging.getLogger("test")))
+    model.profile = profile
+    return save_checkpoint(checkpoint_state(model, epoch=1), path)
+
+
+@pytest.fixture(scope="module")
+def smoke_checkpoint(tmp_path_factory):
+    return untrained_checkpoint(tmp_path_factory.mktemp("ckpt") / "smoke.pth", "smoke")
+
+
+@pytest.fixture
+def frames_folder(tmp_path, make_people_frame):
+    """.npy frames: 000 with people, 001 without points, 002 with people and 5 NaN rows."""
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    people, _ = make_people_frame(rng, 3, (0.0, 1.0))
+    nan_frame = np.concatenate([people, np.full((5, 4), np.nan, np.float32)])
+    for name, points in (("000", people), ("001", np.zeros((0, 4), np.float32)), ("002", nan_frame)):
+        np.save(folder / f"{name}.npy", points)
+    return folder
+
+
+def written_files(folder):
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+
+def test_detect_on_the_real_recording_keeps_detections_not_points(tmp_path, bundled_asset, smoke_checkpoint):
+    recording = bundled_asset(RECORDING, RECORDING_SHA256)
+    zones = tmp_path / "zones.yaml"
+    zones.write_text(ZONES)
+    out = tmp_path / "out"
+    assert cli.main(["detect", "--cfg", REPO_CFG, "--profile", "smoke", "--ckpt", str(smoke_checkpoint),
+                     "--src", str(recording), "--estimate-ground", "--zones", str(zones), "--out", str(out)]) == 0
+    records = [json.loads(line) for line in (out / "detections.jsonl").read_text().splitlines()]
+    assert [r["frame"] for r in records] == [f"{k:06d}" for k in range(10)]
+    assert [r["source"] for r in records] == [f"cube1_sample_2020.bfpc#{k}" for k in range(10)]
+    assert records[0]["time_s"] == 0.0 and all(b["time_s"] > a["time_s"] for a, b in zip(records, records[1:]))
+    assert all(set(r) == {"frame", "source", "time_s", "detections", "events"} for r in records)
+    for record in records:
+        for detection in record["detections"]:
+            assert set(detection) == {"box", "score", "track_id", "zones"} and len(detection["box"]) == 7
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["frames"], summary["format"], summary["points_written"]) == (10, "bfpc", False)
+    assert summary["mount"]["source"] == "estimated from the ground plane"
+    assert summary["detections"] == sum(len(r["detections"]) for r in records)
+    # GDPR default: only detections leave; no point file of any format, no plots
+    assert written_files(out) == sorted(["detections.jsonl", "summary.json", ".memslidar-output",
+                                         *[f"labels/{k:06d}.txt" for k in range(10)]])
+
+
+def test_demo_flags_and_saved_points(tmp_path, frames_folder, smoke_checkpoint, monkeypatch):
+    out = tmp_path / "out"
+    monkeypatch.setattr(sys, "argv", ["demo.py", "--cfg_file", REPO_CFG, "--data_path", str(frames_folder), "--ckpt",
+                                      str(smoke_checkpoint), "--ext", ".npy", "--out", str(out), "--save-points",
+                                      "--plot", "--profile", "smoke"])
+    with pytest.raises(SystemExit) as done:
+        runpy.run_path("tools/demo.py", run_name="__main__")
+    assert done.value.code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["frames"], summary["frames_without_points"], summary["dropped_invalid_points"]) == (3, 1, 5)
+    assert summary["format"] == "npy" and summary["points_written"] is True
+    saved = np.fromfile(out / "points" / "000000.bin", dtype=np.float32).reshape(-1, 4)
+    np.testing.assert_array_equal(saved, np.load(frames_folder / "000.npy"))  # no mount: stored as read
+    assert (out / "points" / "000001.bin").stat().st_size == 0
+    assert sorted(p.name for p in (out / "plots").iterdir()) == ["000000.png", "000001.png", "000002.png"]
+
+
+def test_a_checkpoint_of_another_grid_is_refused_and_nothing_is_written(tmp_path, frames_folder):
+    paper = untrained_checkpoint(tmp_path / "paper.pth", "paper")
+    cfg = load_config(REPO_CFG, profile="smoke")
+    out = tmp_path / "out"
+    with pytest.raises(DataFormatError, match="paper.pth.*trained on .*--set PROFILE paper"):
+        detect(cfg, paper, DetectOptions(src=frames_folder, out=out))
+    assert not out.exists()
+
+
+def test_a_bad_frame_midway_leaves_no_output(tmp_path, frames_folder, smoke_checkpoint):
+    (frames_folder / "003.npy").write_bytes(b"not an array")
+    out = tmp_path / "out"
+    with pytest.raises(DataFormatError, match="003.npy: not a readable .npy array"):
+        detect(load_config(REPO_CFG, profile="smoke"), smoke_checkpoint, DetectOptions(src=frames_folder, out=out))
+    assert not out.exists() and written_files(tmp_path / "frames") == ["000.npy", "001.npy", "002.npy", "003.npy"]
+
+
+@pytest.mark.parametrize("files, message", [(["a.txt", "b.txt"], r"cannot tell the format \(found .txt\): pass "
+                                                                  "--format"),
+                                            (["a.npy", "b.pcd"], "cannot tell the format")])
+def test_unknown_or_mixed_formats_are_refused(tmp_path, smoke_checkpoint, files, message):
+    folder = tmp_path / "src"
+    folder.mkdir()
+    for name in files:
+        (folder / name).write_text("x")
+    with pytest.raises(DataFormatError, match=message) as error:
+        detect(load_config(REPO_CFG, profile="smoke"), smoke_checkpoint, DetectOptions(src=folder,
+                                                                                       out=tmp_path / "out"))
+    assert str(folder) in str(error.value)
+
+
+def test_cli_errors_name_the_file(tmp_path, frames_folder, smoke_checkpoint, capsys):
+    zones = tmp_path / "zones.yaml"
+    zones.write_text("zones:\n  - {name: x, level: warning, polygon: [[0, 0], [2, 2], [2, 0], [0, 2]]}\n")
+    with pytest.raises(SystemExit) as error:
+        cli.main(["detect", "--cfg", REPO_CFG, "--profile", "smoke", "--ckpt", str(smoke_checkpoint), "--src",
+                  str(frames_folder), "--zones", str(zones), "--out", str(tmp_path / "out")])
+    assert error.value.code == 2
+    assert f"{zones}" in capsys.readouterr().err and not (tmp_path / "out").exists()
