@@ -1,11 +1,13 @@
-"""`memslidar simulate`: generate a domain (sim | real | industrial) as a KITTI-layout dataset (sim.writer)."""
+"""`memslidar simulate`: generate a domain (sim | real | industrial) as a KITTI-layout dataset, or one sequence of
+consecutive frames for tracking (sim.writer)."""
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.sim.domains import DOMAINS, get_domain
-from pcdet_memslidar.sim.writer import parse_shard, simulate_dataset
+from pcdet_memslidar.sim.writer import parse_shard, simulate_dataset, simulate_sequence_dataset
 from pcdet_memslidar.utils.cores import available_cores
 
 
@@ -18,10 +20,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="worker processes (default: the cores this process may use, here %(default)s); each "
                              "takes about 2 s to start; 1 = in this process, two frames at a time in threads")
     parser.add_argument("--shard", default="0/1", help="I/N: make only frames with index %% N == I")
+    parser.add_argument("--sequence", type=int, default=None, metavar="N",
+                        help="instead: one sequence of N consecutive frames of the same people and viewpoint (for "
+                             "tracking; metadata person_ids), made in this process")
 
 
 def run(args: argparse.Namespace) -> int:
     preset = get_domain(args.domain)
+    if args.sequence is not None:
+        if args.frames is not None or args.shard != "0/1":
+            raise ConfigError("--sequence N makes N frames in order: leave out --frames and --shard")
+        out = args.out or Path("data") / "memslidar" / f"{args.domain}_sequence_{args.seed}"
+        summary = simulate_sequence_dataset(preset, args.sequence, out, seed=args.seed)
+        print(f"{out}: a sequence of {summary['written']} frames, {summary['people']} people; fingerprint "
+              f"{summary['fingerprint']}")
+        return 0
     frames = preset.default_frames if args.frames is None else args.frames
     out = args.out or Path("data") / "memslidar" / args.domain
     summary = simulate_dataset(preset, frames, out, seed=args.seed, workers=args.workers,

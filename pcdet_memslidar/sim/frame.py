@@ -1,14 +1,16 @@
 """One simulated frame: scene + people -> scan pattern ray casting -> sensor physics -> points and boxes.
 
-Each frame draws everything from its own generator, seeded by (dataset seed, frame index) through numpy's
-SeedSequence, so a frame is the same whichever worker or shard makes it.
+Each frame of a dataset draws everything from its own generator, seeded by (dataset seed, frame index) through
+numpy's SeedSequence, so a frame is the same whichever worker or shard makes it. A sequence (for tracking) draws one
+viewpoint and one set of people whose walks span all its frames, from one generator seeded by the sequence seed.
 """
 from __future__ import annotations
 
 import functools
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Iterator
 
 import numpy as np
 
@@ -18,6 +20,7 @@ from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
 from pcdet_memslidar.sim.caster import Caster
 from pcdet_memslidar.sim.domains import DomainPreset
 from pcdet_memslidar.sim.labels import label_people
+from pcdet_memslidar.sim.motion import Trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
 from pcdet_memslidar.sim.scenes import get_scene
@@ -110,28 +113,48 @@ def _points(origin, directions, pulse_time, pulse, range_m, intensity):
 def simulate_frame(preset: DomainPreset, seed: int, index: int, threads: int = 0,
                    bank: BodyBank | None = None) -> Frame:
     """Frame `index` of domain `preset` with dataset seed `seed`."""
-    seconds = {}
+    return next(_frames(preset, frame_rng(seed, index), 1, dict(frame_index=index, seed=seed), threads, bank))
+
+
+def simulate_sequence(preset: DomainPreset, seed: int, length: int, threads: int = 0,
+                      bank: BodyBank | None = None) -> Iterator[Frame]:
+    """`length` consecutive frames of one viewpoint of `preset` and the same people (sequence seed `seed`): frame k
+    scans from k frame periods after the first one's start. Each frame's metadata adds sequence_seed, time_s (its
+    start [s]) and person_ids (M,): the person (an index into metadata['people'], the same people in every frame)
+    of each box, for tracking metrics."""
+    yield from _frames(preset, frame_rng(seed, 0), length, dict(sequence_seed=seed), threads, bank)
+
+
+def _frames(preset: DomainPreset, rng: np.random.Generator, length: int, identity: dict, threads: int,
+            bank: BodyBank | None) -> Iterator[Frame]:
+    """Frames 0..length-1 of one viewpoint and one set of people whose walks span all of them (one frame: as in a
+    dataset), everything drawn from `rng`; identity: metadata that names the frame's origin."""
     start = time.perf_counter()
     bank = bank or load_body_bank()
-    rng = frame_rng(seed, index)
     pattern, sensor = get_pattern(preset.pattern), get_sensor(preset.sensor)
+    period = pattern.frame_period_s
     # pick the viewpoint; its static world is built and cast once per process
     viewpoint = preset.viewpoints[int(rng.integers(len(preset.viewpoints)))]
     scene = get_scene(viewpoint.scene)
     caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod, threads)
-    # place the people and their trajectories
+    # place the people and their trajectories over all the frames
     people = sample_people(rng, preset, scene, viewpoint.mount, pattern.hfov_deg, pattern.vfov_deg,
-                           pattern.frame_period_s, bank)
-    seconds["people"] = time.perf_counter() - start
-    points, time_offset, boxes, names, records = render(caster, people, sensor, rng, bank, preset.lod,
-                                                        pattern.frame_period_s / 2, preset.time_step_s,
-                                                        preset.phase_steps, seconds)
+                           length * period, bank)
     mount = viewpoint.mount
-    metadata = dict(
-        domain=preset.name, scene=viewpoint.scene, frame_index=index, seed=seed,
-        package_version=pcdet_memslidar.__version__,
-        mount=dict(height=mount.height, tilt_deg=mount.tilt_deg, roll_deg=mount.roll_deg, yaw_deg=mount.yaw_deg),
-        pattern=preset.pattern, sensor=preset.sensor, frame_period_s=pattern.frame_period_s,
-        label_time_s=pattern.frame_period_s / 2, num_pulses=caster.pulses, num_points=len(points),
-        people=records)
-    return Frame(points, time_offset, boxes, names, metadata, seconds)
+    setup_seconds = time.perf_counter() - start
+    for k in range(length):
+        seconds = {"people": setup_seconds if k == 0 else 0.0}
+        # the trajectories' clock shifted so that this frame starts at 0
+        times = people[0].trajectory.times - k * period if people else None
+        now = [replace(p, trajectory=Trajectory(times, p.trajectory.samples)) for p in people]
+        points, time_offset, boxes, names, records = render(caster, now, sensor, rng, bank, preset.lod, period / 2,
+                                                            preset.time_step_s, preset.phase_steps, seconds)
+        metadata = dict(
+            domain=preset.name, scene=viewpoint.scene, **identity, package_version=pcdet_memslidar.__version__,
+            mount=dict(height=mount.height, tilt_deg=mount.tilt_deg, roll_deg=mount.roll_deg, yaw_deg=mount.yaw_deg),
+            pattern=preset.pattern, sensor=preset.sensor, frame_period_s=period, label_time_s=period / 2,
+            num_pulses=caster.pulses, num_points=len(points), people=records)
+        if length > 1:
+            metadata.update(frame_index=k, time_s=round(k * period, 9),
+                            person_ids=[i for i, record in enumerate(records) if record["labelled"]])
+        yield Frame(points, time_offset, boxes, names, metadata, seconds)

@@ -29,15 +29,16 @@ from pcdet_memslidar.io.kitti import read_label
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.sim.bodies import BANK_PATH
 from pcdet_memslidar.sim.domains import DomainPreset
-from pcdet_memslidar.sim.frame import Frame, simulate_frame
+from pcdet_memslidar.sim.frame import Frame, simulate_frame, simulate_sequence
 from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
-from pcdet_memslidar.utils.atomic import write_bytes, write_text
+from pcdet_memslidar.utils.atomic import atomic_dir, write_bytes, write_text
 from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
 from pcdet_memslidar.utils.progress import progress_bar
 
 SETTINGS_FILE = "simulation.json"
+SEQUENCE_COMMAND = "memslidar simulate --sequence"  # the owner of the sequence folders it writes
 FRAME_THREADS = 2  # frames made at a time by one process
 MAX_FRAMES = 10 ** 6  # frame ids have six digits
 
@@ -51,12 +52,15 @@ def frame_id(index: int) -> str:
     return f"{index:06d}"
 
 
-def domain_settings(preset: DomainPreset, seed: int) -> dict:
-    """Everything that makes a domain's frames, with its sha256 fingerprint under 'fingerprint'."""
+def domain_settings(preset: DomainPreset, seed: int, sequence_length: int | None = None) -> dict:
+    """Everything that makes a domain's frames (or one sequence of sequence_length frames), with its sha256
+    fingerprint under 'fingerprint'."""
     settings = dict(domain=preset.to_dict(), pattern=dataclasses.asdict(get_pattern(preset.pattern)),
                     sensor=dataclasses.asdict(get_sensor(preset.sensor)), seed=int(seed),
                     package_version=pcdet_memslidar.__version__,
                     body_bank_sha256=hashlib.sha256(BANK_PATH.read_bytes()).hexdigest())
+    if sequence_length is not None:
+        settings["sequence_length"] = int(sequence_length)
     text = json.dumps(settings, sort_keys=True, default=float)
     settings["fingerprint"] = hashlib.sha256(text.encode()).hexdigest()[:16]
     return json.loads(json.dumps(settings, default=float))
@@ -180,3 +184,27 @@ def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: i
         write_split(layout)
     return dict(written=count, skipped=len(indices) - count, remade=remade, points=int(points), complete=complete,
                 fingerprint=settings["fingerprint"])
+
+
+def simulate_sequence_dataset(preset: DomainPreset, length: int, out: str | Path, seed: int = 0,
+                              progress: bool = True) -> dict:
+    """One sequence of `length` frames of `preset` (sim.frame.simulate_sequence, sequence seed `seed`) as a
+    KITTI-layout dataset at `out`, written whole into a temporary folder that replaces `out` at the end (a
+    sequence is made in order, so it is not resumed). Returns dict(written, points, people, fingerprint)."""
+    if not 2 <= length <= MAX_FRAMES:
+        raise ConfigError(f"--sequence must be between 2 and {MAX_FRAMES:,} frames, got {length}")
+    if seed < 0:
+        raise ConfigError(f"--seed must be a non-negative integer, got {seed}")
+    settings = domain_settings(preset, seed, sequence_length=length)
+    points, people = 0, 0
+    keep_freed_memory()
+    bar = progress_bar(total=length, desc=f"simulate a {preset.name} sequence", unit="frame", enabled=progress)
+    with atomic_dir(out, SEQUENCE_COMMAND) as tmp, bar:
+        write_text(tmp / SETTINGS_FILE, json.dumps(settings, sort_keys=True, indent=1) + "\n")
+        layout = KittiLayout(tmp)
+        for index, frame in enumerate(simulate_sequence(preset, seed, length)):
+            write_simulated_frame(layout, index, frame, settings["fingerprint"])
+            points, people = points + len(frame.points), len(frame.metadata["people"])
+            bar.update()
+        write_split(layout)
+    return dict(written=length, points=int(points), people=people, fingerprint=settings["fingerprint"])

@@ -68,3 +68,21 @@ def test_a_folder_of_files_simulate_did_not_make_is_left_untouched(tmp_path):
                                           r"\.json\); choose another --out, or move them away yourself"):
         simulate_dataset(get_domain("real"), 2, tmp_path / "mine", progress=False)
     assert sorted(p.name for p in (tmp_path / "mine").rglob("*")) == ["notes.txt", "training"]
+
+
+def test_a_sequence_is_written_whole_with_person_ids(tmp_path):
+    import json
+
+    from pcdet_memslidar import cli
+    out = tmp_path / "sequence"
+    assert cli.main(["simulate", "--domain", "industrial", "--sequence", "3", "--seed", "1001", "--out", str(out)]) == 0
+    layout = KittiLayout(out)
+    assert layout.frame_ids() == ["000000", "000001", "000002"]
+    settings = json.loads((out / "simulation.json").read_text())
+    assert (settings["sequence_length"], settings["seed"]) == (3, 1001)
+    for frame_id in layout.frame_ids():
+        metadata = json.loads(layout.metadata(frame_id).read_text())
+        assert len(metadata["person_ids"]) == len(read_frame(layout, frame_id)["gt_boxes"])
+    with pytest.raises(ConfigError, match="leave out --frames"):
+        cli.command_module("simulate").run(cli.build_parser("simulate").parse_args(
+            ["simulate", "--domain", "industrial", "--sequence", "3", "--frames", "5"]))
