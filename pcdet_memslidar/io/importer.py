@@ -50,16 +50,18 @@ class SourceFrame:
 
 
 def _bfpc_frames(src: Path) -> list[SourceFrame]:
-    """Frames of one .bfpc recording or of every .bfpc in a folder; a pulse without return counts as dropped."""
-    frames = []
+    """Frames of one .bfpc recording or of every .bfpc in a folder, timed from the first one's start; a pulse
+    without return counts as dropped."""
+    frames, first_start_ns = [], None
     for path in _files(src, ".bfpc"):
         recording = read_bfpc(path)
         for index, frame in enumerate(recording.frames):
+            first_start_ns = frame.start_time_ns if first_start_ns is None else first_start_ns
             strongest = frame.first_returns()
             cloud = LoadedCloud(points=frame.points[strongest], time=frame.time_offset[frame.return_pulse[strongest]],
                                 dropped=int((~frame.returned).sum()), has_intensity=True)
-            time_s = (frame.start_time_ns - recording.frames[0].start_time_ns) * 1e-9
-            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud, time_s=time_s))
+            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud,
+                                      time_s=(frame.start_time_ns - first_start_ns) * 1e-9))
     return frames
 
 

@@ -138,6 +138,8 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     check_output_folder(out, COMMAND)
     fmt = resolve_format(src, options.fmt)
     frames = recording_frames(src, fmt)
+    if not frames:
+        raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)
     monitor = Monitor(TrackerConfig.from_block(cfg.get("TRACKER"), cfg.get("CFG_FILE", "the config")),
                       options.zones or [])
@@ -155,6 +157,10 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
                                                              predictions):
                 tick = time.perf_counter()  # 3. track, zones and events, in time order
                 time_s = frame.time_s if frame.time_s is not None else index * options.frame_period_s
+                if monitor.tracker.time_s is not None and time_s < monitor.tracker.time_s:
+                    raise DataFormatError(src, f"frame {frame.name} starts {monitor.tracker.time_s - time_s:.3f} s "
+                                               "before the frame listed before it: give the recordings of one "
+                                               "sensor, named in time order")
                 record, boxes, scores, ids = monitor.step(f"{index:06d}", frame.name, time_s, boxes, scores)
                 tick = _lap(seconds, "track", tick)
                 lines.write(json.dumps(record) + "\n")  # 4. write

@@ -130,3 +130,16 @@ def test_cli_errors_name_the_file(tmp_path, frames_folder, smoke_checkpoint, cap
                   str(frames_folder), "--zones", str(zones), "--out", str(tmp_path / "out")])
     assert error.value.code == 2
     assert f"{zones}" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_recordings_out_of_time_order_are_refused(tmp_path, bundled_asset, smoke_checkpoint):
+    recording = bundled_asset(RECORDING, RECORDING_SHA256)
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    for name in ("a.bfpc", "b.bfpc"):  # the same recording twice: b starts again at a's first time stamp
+        (folder / name).write_bytes(recording.read_bytes())
+    out = tmp_path / "out"
+    with pytest.raises(DataFormatError, match=r"frame b.bfpc#0 starts 1.222 s before the frame listed before it"):
+        detect(load_config(REPO_CFG, profile="smoke"), smoke_checkpoint,
+               DetectOptions(src=folder, out=out, mount=None, estimate_ground=True))
+    assert not out.exists()
