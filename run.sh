@@ -11,7 +11,9 @@ command -v "$python" >/dev/null || python=python3
 [ -x .venv/bin/python ] || "$python" -m venv .venv
 export PIP_DISABLE_PIP_VERSION_CHECK=1
 .venv/bin/python -m pip install -q torch==2.13.0
-.venv/bin/python -m pip install -q -e ".[test]"
+extras=""
+if [ "$job" = test ]; then extras="[test]"; fi  # pytest, ruff, shapely, motmetrics: only the tests need them
+.venv/bin/python -m pip install -q -e ".$extras"
 export PATH="$PWD/.venv/bin:$PATH"
 
 case "$job" in
