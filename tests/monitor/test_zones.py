@@ -97,3 +97,10 @@ def test_bad_zone_files_name_the_file_the_zone_and_the_fix(tmp_path, text, messa
 def test_missing_zone_file(tmp_path):
     with pytest.raises(DataFormatError, match="zone file not found"):
         read_zones(tmp_path / "none.yaml")
+
+
+def test_the_example_zone_file_loads():
+    from pathlib import Path
+    zones = read_zones(Path(__file__).resolve().parents[2] / "examples" / "zones_industrial_entrance.yaml")
+    assert [(zone.name, zone.level) for zone in zones] == [("walkway", "warning"), ("machines right", "protective"),
+                                                          ("machines left", "protective")]
