@@ -160,10 +160,12 @@ def read_curve(run_dir: Path) -> list[dict]:
     return json.loads(path.read_text()) if path.is_file() else []
 
 
-def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress=None) -> Path:
-    """runtime.train of cfg into run_dir (a run folder of another config is refused), with the AP on the mix's
-    validation split after every epoch in run_dir/curve.json; returns the final checkpoint. progress(epoch) is
-    called after each epoch (and then the training logs lines instead of drawing bars)."""
+def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress=None,
+                   every_epoch: bool = True) -> Path:
+    """runtime.train of cfg into run_dir (a run folder of another config is refused), with the loss and the AP on
+    the mix's validation split after every epoch (every_epoch False: the AP after the last epoch only) in
+    run_dir/curve.json; returns the final checkpoint. progress(epoch) is called after each epoch (and then the
+    training logs lines instead of drawing bars)."""
     check_run_config(cfg, run_dir)
     curve = read_curve(run_dir)
 
@@ -171,17 +173,19 @@ def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress
         curve[:] = [entry for entry in curve if entry["epoch"] < epoch]  # entries of epochs trained again go
         minutes = (curve[-1]["minutes"] if curve else 0.0) + seconds / 60
         curve.append({"epoch": epoch, "minutes": round(minutes, 3), "loss": mean_loss,
-                      "val_AP3D_R40": val["AP3D_R40"], "val_APBEV_R40": val["APBEV_R40"]})
+                      "val_AP3D_R40": val and val["AP3D_R40"], "val_APBEV_R40": val and val["APBEV_R40"]})
         write_text(run_dir / CURVE_FILE, json.dumps(curve, indent=1) + "\n")
         if progress is not None:
             progress(epoch)
 
-    return train(cfg, run_dir, logger, seed=seed, workers=workers, on_epoch=record,
+    val_interval = 1 if every_epoch else int(cfg.OPTIMIZATION.NUM_EPOCHS)
+    return train(cfg, run_dir, logger, seed=seed, workers=workers, on_epoch=record, val_interval=val_interval,
                  use_tqdm_to_record=progress is not None)
 
 
 def run_model(job: dict, progress=None) -> dict:
-    """Train and test one (model, seed) job {model, seed, cfg, run_dir, gt_dir, out, workers, threads}; returns
+    """Train and test one (model, seed) job {model, seed, cfg, run_dir, gt_dir, out, workers, threads,
+    every_epoch (validate after every epoch, else after the last)}; returns
     its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there. Runs
     in the calling process or in a worker process of `reproduce` (then it logs to run_dir/log.txt only, and
     progress(epoch) reports its epochs)."""
@@ -197,7 +201,7 @@ def run_model(job: dict, progress=None) -> dict:
     logger = create_logger(run_dir / "log.txt", name=f"pcdet_memslidar.{job['model']}.{job['seed']}",
                            console=progress is None)
     started = time.perf_counter()
-    checkpoint = train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress)
+    checkpoint = train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress, job["every_epoch"])
     trained = time.perf_counter()
     result = predict(cfg, checkpoint, run_dir / "eval", logger, workers=job["workers"])
     pred_dir = prediction_folder(run_dir / "eval") / cfg.DATA_CONFIG.TEST_SOURCE.NAME
@@ -313,11 +317,13 @@ def check_run_options(seeds: int, jobs: int | None, workers: int, models: int) -
 
 
 def training_jobs(cfgs: dict, seeds: int, runs_dir: Path, gt_dir: Path, out: Path, workers: int,
-                  parallel: int) -> list[dict]:
+                  parallel: int, every_epoch: bool = True) -> list[dict]:
     """run_jobs' jobs: every config of cfgs {name: cfg} for seeds 0..seeds-1, seed by seed, each in
-    runs_dir/<name>/seed_<k> on its share of the cores (`parallel` runs at once)."""
+    runs_dir/<name>/seed_<k> on its share of the cores (`parallel` runs at once), validated after every epoch
+    (every_epoch) or after the last one only."""
     return [{"model": name, "seed": seed, "cfg": cfg, "run_dir": runs_dir / name / f"seed_{seed}", "gt_dir": gt_dir,
-             "out": out, "workers": workers, "threads": max(1, available_cores() // parallel)}
+             "out": out, "workers": workers, "threads": max(1, available_cores() // parallel),
+             "every_epoch": every_epoch}
             for seed in range(seeds) for name, cfg in cfgs.items()]
 
 

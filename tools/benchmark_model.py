@@ -117,7 +117,7 @@ def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dic
         run_dir = out_dir / name.replace("/", "-").replace(" ", "_")
         jobs.append({"model": name, "seed": 0, "cfg": cfg, "run_dir": run_dir,
                      "gt_dir": KittiLayout(test.root).training / "label_2", "out": out_dir, "workers": 0,
-                     "threads": threads})
+                     "threads": threads, "every_epoch": False})
     runs = run_jobs(jobs, min(len(jobs), default_jobs()), logging.getLogger(__name__))
     return {job["model"]: {"AP3D_R40": run["metrics"]["AP3D_R40"], "val_AP3D_R40": run["curve"][-1]["val_AP3D_R40"],
                            "train_minutes": run["curve"][-1]["minutes"]} for job, run in zip(jobs, runs)}

@@ -97,3 +97,11 @@ def test_smoke_sweep_writes_its_table_and_figure_and_resumes(tmp_path, monkeypat
     assert "| sim_000 | sim + real | 0 | 20 | 1 |" in text and "| sim_100 | sim + real | 20 | 0 | 1 |" in text
     assert "](ratio.png)" in text and (out / "ratio.png").read_bytes()[:8] == PNG_MAGIC
     assert "memslidar sweep ratio --grid 0 100 --profile smoke --seeds 1" in text
+
+
+def test_a_sweep_point_is_validated_after_its_last_epoch_only(tmp_path):
+    out = tmp_path / "sweep"
+    sweep("ratio", "smoke", 1, out, tmp_path / "data", jobs=1, grid=[0], set_cfgs=["OPTIMIZATION.NUM_EPOCHS", "2"])
+    curve = json.loads((out / "points" / "sim_000" / "seed_0" / "curve.json").read_text())
+    assert [entry["epoch"] for entry in curve] == [1, 2]
+    assert curve[0]["val_AP3D_R40"] is None and isinstance(curve[1]["val_AP3D_R40"], float)
