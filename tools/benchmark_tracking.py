@@ -79,8 +79,10 @@ def main() -> None:
     parser.add_argument("--cfg", required=True, help="the detector's config")
     parser.add_argument("--profile", default="quick", help="its profile (the checkpoint's)")
     parser.add_argument("--ckpt", required=True, type=Path, help="a trained checkpoint of --cfg / --profile")
-    parser.add_argument("--sequences", type=int, default=3, help="industrial sequences (default %(default)s)")
-    parser.add_argument("--length", type=int, default=50, help="frames per sequence (default %(default)s: 20 s)")
+    parser.add_argument("--sequences", type=int, default=6, help="industrial sequences (default %(default)s)")
+    parser.add_argument("--length", type=int, default=25,
+                        help="frames per sequence (default %(default)s: 10 s; a walk must stay clear of the machines "
+                             "for the whole sequence, so long ones keep mostly people who stand)")
     parser.add_argument("--speed-profiles", nargs="*", default=["quick", "paper"],
                         help="profiles timed with an untrained SECOND (default: %(default)s)")
     parser.add_argument("--threads", type=int, default=available_cores(), help="torch threads (default: the cores)")
