@@ -31,10 +31,10 @@ from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
 from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
 from pcdet_memslidar.io.pointclouds import SUFFIXES
-from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
-from pcdet_memslidar.runtime.checkpoint import load_params_from_file
+from pcdet_memslidar.runtime.predict import load_detector
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
 from pcdet_memslidar.utils.progress import progress_bar
@@ -97,14 +97,6 @@ class FrameVoxeliser(DatasetTemplate):
         return self.prepare_data({"points": points, "frame_id": frame_id})
 
 
-def load_detector(cfg, checkpoint: Path, voxeliser: FrameVoxeliser, device, logger) -> torch.nn.Module:
-    """SECOND of cfg with the weights of `checkpoint` (one of another config or grid is refused, naming it)."""
-    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=voxeliser).to(device)
-    model.profile = cfg.get("PROFILE")
-    load_params_from_file(model, checkpoint, logger, strict=True)
-    return model.eval()
-
-
 class Monitor:
     """Tracks and zone events over a stream of frames' detections (the part of detect after the detector)."""
 
@@ -144,7 +136,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     monitor = Monitor(TrackerConfig.from_block(cfg.get("TRACKER"), cfg.get("CFG_FILE", "the config")),
                       options.zones or [])
     voxeliser = FrameVoxeliser(cfg, logger)
-    model = load_detector(cfg, Path(checkpoint), voxeliser, device, logger)
+    model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger)
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()
     with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+
 from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import load_params_from_file
@@ -23,6 +25,15 @@ def test_loader(cfg, logger, process: Process | None = None, workers: int = 0):
     return dataset, loader
 
 
+def load_detector(cfg, checkpoint: str | Path, dataset, device, logger) -> tuple[torch.nn.Module, int | None]:
+    """(cfg's detector with the weights of `checkpoint`, in eval mode on `device`; the checkpoint's epoch). dataset
+    gives the grid (a DatasetTemplate); a checkpoint of another model or grid is refused, naming it."""
+    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=dataset).to(device)
+    model.profile = cfg.get("PROFILE")  # named when a checkpoint of another grid is refused
+    epoch = load_params_from_file(model, checkpoint, logger, strict=True).get("epoch")
+    return model.eval(), epoch
+
+
 def predict(cfg, checkpoint: str | Path, result_dir: Path, logger, process: Process | None = None, workers: int = 0,
             loader=None, save_to_file: bool = True) -> dict:
     """Run `checkpoint` over cfg's evaluation split; returns eval_one_epoch's result (AP keys, recall,
@@ -31,8 +42,6 @@ def predict(cfg, checkpoint: str | Path, result_dir: Path, logger, process: Proc
     when None."""
     process = process or local_process()
     dataset, data_loader = loader or test_loader(cfg, logger, process, workers)
-    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=dataset).to(process.device)
-    model.profile = cfg.get("PROFILE")  # named when a checkpoint of another grid is refused
-    epoch = load_params_from_file(model, checkpoint, logger, strict=True).get("epoch")
+    model, epoch = load_detector(cfg, checkpoint, dataset, process.device, logger)
     return eval_one_epoch(cfg, model, data_loader, epoch, logger, process.device, dist_test=process.dist,
                           result_dir=result_dir, save_to_file=save_to_file)
