@@ -84,7 +84,10 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
         seconds = time.perf_counter() - clock["start"]
         result = None
         if val_interval > 0 and epoch % val_interval == 0:
-            result = eval_one_epoch(val_cfg, model, val_loader, epoch, logger, process.device, dist_test=process.dist)
+            # the loader's base seed comes from torch's RNG: fork it, so validating leaves the training unchanged
+            with torch.random.fork_rng(devices=[process.device] if process.device.type == "cuda" else []):
+                result = eval_one_epoch(val_cfg, model, val_loader, epoch, logger, process.device,
+                                        dist_test=process.dist)
         if on_epoch is not None:
             on_epoch(epoch, mean_loss, result, seconds)
         clock["start"] = time.perf_counter()  # validation time is not training time
