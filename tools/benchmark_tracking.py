@@ -9,7 +9,9 @@ Sequences: `memslidar simulate --domain industrial --sequence LENGTH --seed S`, 
 (kept in --out/sequences). Tracking: evaluation.tracking (motmetrics; a box within 0.5 m of a person's BEV centre).
 AP 3D R40 at IoU 0.5 of the detections detect keeps (score >= TRACKER.MIN_SCORE), all of them and those of confirmed
 tracks only. Speed: the checkpoint, then an untrained SECOND of each --speed-profiles entry (the paper profile cannot
-be trained on a CPU; the weights change the time only through the boxes NMS gets) over the first sequence.
+be trained on a CPU; the weights change the time only through the boxes NMS gets) over the first sequence, next
+to each profile's compute floor: the FLOPs of one forward pass on its first frame over this machine's fp32 GEMM rate
+(utils.compute), the least ms/frame any fp32 implementation of that model needs on these threads.
 Results: Markdown on stdout, JSON in --out/tracking_benchmark.json.
 """
 from __future__ import annotations
@@ -29,12 +31,13 @@ from pcdet_memslidar.evaluation.tracking import mot_metrics, sequence_truth
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout
-from pcdet_memslidar.models import build_network
+from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.monitor.detect import DETECTIONS_FILE, DetectOptions, FrameVoxeliser, detect
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_sequence_dataset
 from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.compute import floor_ms, forward_flops, gemm_flops_per_s
 from pcdet_memslidar.utils.cores import available_cores
 
 SEED_BASE = 1000  # sequence seeds: far from the datasets' seeds (0, 1)
@@ -62,10 +65,18 @@ def tracked_labels(records: list[dict], folder: Path) -> Path:
     return folder
 
 
-def untrained_checkpoint(cfg, path: Path) -> Path:
+def untrained_model(cfg) -> torch.nn.Module:
     model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=FrameVoxeliser(cfg, logging.getLogger()))
     model.profile = cfg.get("PROFILE")
-    return save_checkpoint(checkpoint_state(model, epoch=0), path)
+    return model.eval()
+
+
+def frame_flops(model, root: Path) -> int:
+    """FLOPs of model's forward pass on the first frame of the KITTI folder `root`."""
+    layout = KittiLayout(root)
+    frame_id = layout.frame_ids()[0]
+    sample = model.dataset(kitti.read_points(layout.velodyne(frame_id)), frame_id)
+    return forward_flops(model, load_data_to_device(model.dataset.collate_batch([sample]), torch.device("cpu")))
 
 
 def speed_row(name: str, summary: dict) -> str:
@@ -105,12 +116,17 @@ def main() -> None:
                              **mot_metrics(runs[-1:]), "speed": summary})
     pooled = mot_metrics(runs)
     speeds = {f"{args.profile} (trained)": per_sequence[0]["speed"]}
+    gemm_rate, floors = gemm_flops_per_s(), {}
     for profile in args.speed_profiles:
         speed_cfg = load_config(args.cfg, profile=profile)
-        checkpoint = untrained_checkpoint(speed_cfg, args.out / f"untrained_{profile}.pth")
-        speeds[f"{profile} (untrained)"] = detect(speed_cfg, checkpoint,
-                                                  DetectOptions(src=roots[0], out=args.out / "speed" / profile,
-                                                                fmt="kitti"))
+        model = untrained_model(speed_cfg)
+        checkpoint = save_checkpoint(checkpoint_state(model, epoch=0), args.out / f"untrained_{profile}.pth")
+        name = f"{profile} (untrained)"
+        speeds[name] = detect(speed_cfg, checkpoint, DetectOptions(src=roots[0], out=args.out / "speed" / profile,
+                                                                   fmt="kitti"))
+        flops = frame_flops(model, roots[0])
+        floors[name] = {"gflop_per_frame": flops / 1e9, "floor_ms": floor_ms(flops, gemm_rate),
+                        "max_frames_per_s": 1000.0 / floor_ms(flops, gemm_rate)}
 
     print(f"# memslidar detect on {len(roots)} simulated industrial sequences of {args.length} frames "
           f"({args.threads} torch threads, {args.ckpt})\n")
@@ -125,9 +141,15 @@ def main() -> None:
     print(f"\n| model | frames/s | {stages} | detections/frame |\n|---|---|" + "---|" * 6)
     for name, summary in speeds.items():
         print(speed_row(name, summary))
+    print(f"\n| model | GFLOP/frame | fp32 GEMM GFLOP/s ({args.threads} threads) | floor ms/frame | at most frames/s "
+          "| measured infer ms/frame |\n|---|---|---|---|---|---|")
+    for name, floor in floors.items():
+        print(f"| {name} | {floor['gflop_per_frame']:.1f} | {gemm_rate / 1e9:.0f} | {floor['floor_ms']:.0f} | "
+              f"{floor['max_frames_per_s']:.1f} | {speeds[name]['ms_per_frame']['infer']:.0f} |")
     write_text(args.out / "tracking_benchmark.json",
                json.dumps({"checkpoint": str(args.ckpt), "threads": args.threads, "length": args.length,
-                           "sequences": per_sequence, "pooled": pooled, "speed": speeds}, indent=1) + "\n")
+                           "sequences": per_sequence, "pooled": pooled, "speed": speeds,
+                           "gemm_flops_per_s": gemm_rate, "compute_floor": floors}, indent=1) + "\n")
 
 
 if __name__ == "__main__":
