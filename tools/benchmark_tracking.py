@@ -141,8 +141,9 @@ def main() -> None:
     print(f"\n| model | frames/s | {stages} | detections/frame |\n|---|---|" + "---|" * 6)
     for name, summary in speeds.items():
         print(speed_row(name, summary))
-    print(f"\n| model | GFLOP/frame | fp32 GEMM GFLOP/s ({args.threads} threads) | floor ms/frame | at most frames/s "
-          "| measured infer ms/frame |\n|---|---|---|---|---|---|")
+    if floors:
+        print(f"\n| model | GFLOP/frame | fp32 GEMM GFLOP/s ({args.threads} threads) | floor ms/frame "
+              "| at most frames/s | measured infer ms/frame |\n|---|---|---|---|---|---|")
     for name, floor in floors.items():
         print(f"| {name} | {floor['gflop_per_frame']:.1f} | {gemm_rate / 1e9:.0f} | {floor['floor_ms']:.0f} | "
               f"{floor['max_frames_per_s']:.1f} | {speeds[name]['ms_per_frame']['infer']:.0f} |")
