@@ -75,10 +75,24 @@ def frames_for(cfg, training: bool, count: int):
                                   max_voxels=step.MAX_NUMBER_OF_VOXELS["test"]), "synthetic"
 
 
-def time_inference(model, dataset, frames: int, warmup: int, device) -> float:
-    """Median ms per frame (batch size 1, model forward incl. NMS; data loading excluded)."""
+def time_inference(model, dataset, frames: int, warmup: int, device) -> tuple[float, dict[str, float]]:
+    """Median ms per frame (batch size 1, model forward incl. NMS; data loading excluded), and the median ms of each
+    module of model.module_topology and of the post-processing after them."""
     model.eval()
-    times = []
+    times, parts = [], {name: [] for name in [*model.module_topology, "post_processing"]}
+    ticks = {}
+
+    def tick(name):
+        def hook(*_):
+            if device.type == "cuda":
+                torch.cuda.synchronize(device)
+            ticks[name] = time.perf_counter()
+        return hook
+
+    handles = []
+    for name in model.module_topology:
+        handles.append(getattr(model, name).register_forward_pre_hook(tick(f"{name} start")))
+        handles.append(getattr(model, name).register_forward_hook(tick(f"{name} end")))
     for index in range(warmup + frames):
         batch = load_data_to_device(dataset.collate_batch([dataset[index % len(dataset)]]), device)
         start = time.perf_counter()
@@ -86,9 +100,15 @@ def time_inference(model, dataset, frames: int, warmup: int, device) -> float:
             model(batch)
         if device.type == "cuda":
             torch.cuda.synchronize(device)
+        end = time.perf_counter()
         if index >= warmup:
-            times.append((time.perf_counter() - start) * 1000)
-    return float(np.median(times))
+            times.append((end - start) * 1000)
+            for name in model.module_topology:
+                parts[name].append((ticks[f"{name} end"] - ticks[f"{name} start"]) * 1000)
+            parts["post_processing"].append((end - ticks[f"{model.module_topology[-1]} end"]) * 1000)
+    for handle in handles:
+        handle.remove()
+    return float(np.median(times)), {name: float(np.median(ms)) for name, ms in parts.items()}
 
 
 def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) -> float:
@@ -149,10 +169,9 @@ def main(argv: list[str] | None = None) -> int:
         row = {"config": name, "voxel_xy_m": voxel_step(cfg).VOXEL_SIZE[0],
                "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS),
                "head_stride": cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0]["feature_map_stride"], "frames": source,
-               "params": sum(p.numel() for p in model.parameters()),
-               "infer_ms": time_inference(model, dataset, args.frames, args.warmup, device),
-               "train_step_ms": time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2),
-                                                device)}
+               "params": sum(p.numel() for p in model.parameters())}
+        row["infer_ms"], row["infer_ms_per_module"] = time_inference(model, dataset, args.frames, args.warmup, device)
+        row["train_step_ms"] = time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2), device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
@@ -176,6 +195,11 @@ def main(argv: list[str] | None = None) -> int:
         cells = [row.get(key, "") for key in header]
         print("| " + " | ".join(f"{c:.1f}" if isinstance(c, float) and c > 1 else
                                  f"{c:.3f}" if isinstance(c, float) else str(c) for c in cells) + " |")
+    modules = list(rows[0]["infer_ms_per_module"])
+    print("\ninference ms per module (medians; they need not add up to infer_ms, itself a median)\n")
+    print("| config | " + " | ".join(modules) + " |\n|" + "---|" * (len(modules) + 1))
+    for row in rows:
+        print(f"| {row['config']} | " + " | ".join(f"{row['infer_ms_per_module'][m]:.1f}" for m in modules) + " |")
     write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows}, indent=2))
     return 0
 

@@ -44,6 +44,9 @@ FORMATS = ("auto", "bfpc", "pcd", "ply", "npy", "bin", "kitti")
 FRAME_PERIOD_S = get_pattern("cube1_paper").frame_period_s  # time between frames of formats without time stamps
 DETECTIONS_FILE, SUMMARY_FILE = "detections.jsonl", "summary.json"
 STAGES = ("read", "voxelise", "infer", "track", "write")
+# frames per forward pass by device type: on a CPU one frame at a time is fastest per frame (measured: README,
+# "Results: tracks and speed"); batches fill a GPU
+BATCH_SIZE = {"cpu": 1, "cuda": 4}
 
 
 @dataclass
@@ -56,7 +59,7 @@ class DetectOptions:
     mount: Mount | None = None
     estimate_ground: bool = False
     zones: list[Zone] | None = None
-    batch_size: int = 4
+    batch_size: int | None = None  # None: BATCH_SIZE of the device
     frame_period_s: float = FRAME_PERIOD_S
     save_points: bool = False
     plot: bool = False
@@ -137,12 +140,13 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
                       options.zones or [])
     voxeliser = FrameVoxeliser(cfg, logger)
     model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger)
+    batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()
     with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines:
         bar = progress_bar(total=len(frames), desc="detect", unit="frame")
-        for first in range(0, len(frames), options.batch_size):
-            batch = frames[first:first + options.batch_size]
+        for first in range(0, len(frames), batch_size):
+            batch = frames[first:first + batch_size]
             clouds = _read(batch, mount, seconds, counts)  # 1. read and normalise
             predictions = _infer(model, voxeliser, clouds, first, device, seconds, counts)  # 2. voxelise, infer
             for index, frame, points, (boxes, scores) in zip(range(first, first + len(batch)), batch, clouds,
@@ -170,7 +174,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
                    "frames_without_voxels": counts["no_voxels"], "dropped_invalid_points": counts["dropped"],
                    "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
                    "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
-                   "device": str(device), "torch_threads": torch.get_num_threads(),
+                   "device": str(device), "torch_threads": torch.get_num_threads(), "batch_size": batch_size,
                    "ms_per_frame": {stage: 1000 * seconds[stage] / max(1, len(frames)) for stage in STAGES},
                    "frames_per_s": len(frames) / wall if wall > 0 else float("inf")}
         write_text(tmp / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n")

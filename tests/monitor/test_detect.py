@@ -143,3 +143,24 @@ def test_recordings_out_of_time_order_are_refused(tmp_path, bundled_asset, smoke
         detect(load_config(REPO_CFG, profile="smoke"), smoke_checkpoint,
                DetectOptions(src=folder, out=out, mount=None, estimate_ground=True))
     assert not out.exists()
+
+
+def test_batched_frames_give_the_detections_of_single_frames(tmp_path, bundled_asset, smoke_checkpoint):
+    """The CPU default (one frame per forward pass) and a GPU-style batch keep the same boxes; every box is kept
+    (score thresholds 0) so that an untrained model has detections to compare."""
+    cfg = load_config(REPO_CFG, ["MODEL.POST_PROCESSING.SCORE_THRESH", "0.0"], "smoke")
+    cfg.TRACKER = {"MIN_SCORE": 0.0}  # the optional block (monitor/tracker.py)
+    recording = bundled_asset(RECORDING, RECORDING_SHA256)
+    records = {}
+    for batch_size in (None, 4):
+        out = tmp_path / f"batch_{batch_size}"
+        summary = detect(cfg, smoke_checkpoint, DetectOptions(src=recording, out=out, estimate_ground=True,
+                                                              batch_size=batch_size))
+        assert summary["batch_size"] == (batch_size or 1)
+        records[batch_size] = [json.loads(line) for line in (out / "detections.jsonl").read_text().splitlines()]
+    single, batched = records[None], records[4]
+    assert sum(len(r["detections"]) for r in single) >= 10
+    for one, four in zip(single, batched, strict=True):
+        assert len(one["detections"]) == len(four["detections"])
+        for a, b in zip(one["detections"], four["detections"]):
+            np.testing.assert_allclose(a["box"] + [a["score"]], b["box"] + [b["score"]], rtol=1e-4, atol=1e-4)
