@@ -3,8 +3,6 @@ from __future__ import annotations
 
 from torch import nn
 
-from pcdet_memslidar.models.spconv_cpu import single_thread
-
 
 class HeightCompression(nn.Module):
     """Stack the z cells of the sparse output into channels: (B, C, D, H, W) -> (B, C * D, H, W)."""
@@ -15,8 +13,7 @@ class HeightCompression(nn.Module):
         self.num_bev_features = model_cfg.NUM_BEV_FEATURES
 
     def forward(self, batch_dict: dict) -> dict:
-        with single_thread():
-            spatial_features = batch_dict["encoded_spconv_tensor"].dense()
+        spatial_features = batch_dict["encoded_spconv_tensor"].dense()  # torch indexing: safe on all threads
         batch, channels, depth, height, width = spatial_features.shape
         batch_dict["spatial_features"] = spatial_features.view(batch, channels * depth, height, width)
         batch_dict["spatial_features_stride"] = batch_dict["encoded_spconv_tensor_stride"]

@@ -1,10 +1,13 @@
-"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, and the
-CPU patch is idempotent."""
+"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, the CPU patch
+is idempotent, and the sparse output becomes the BEV map exactly on 2 threads."""
 import pytest
+import spconv.pytorch as spconv
 import torch
+from easydict import EasyDict
 from torch.nn import functional as F
 
 from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
+from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
 
 GRID = [64, 48, 40]  # x, y, z cells
@@ -95,3 +98,22 @@ def test_patch_is_idempotent_and_single_thread_restores():
     with single_thread():
         assert torch.get_num_threads() == 1
     assert torch.get_num_threads() == threads
+
+
+def test_height_compression_places_every_voxel_exactly_at_two_threads(two_threads):
+    """HeightCompression runs on all threads (spconv's dense() is torch indexing): channel c of height d lands in
+    BEV channel c * D + d at its (y, x), nothing else is written."""
+    generator = torch.Generator().manual_seed(1)
+    batch, channels, shape = 2, 3, (2, 40, 56)  # (D, H, W)
+    cells = torch.randperm(batch * shape[0] * shape[1] * shape[2], generator=generator)[:900]
+    b, rest = cells // (shape[0] * shape[1] * shape[2]), cells % (shape[0] * shape[1] * shape[2])
+    z, y, x = rest // (shape[1] * shape[2]), rest // shape[2] % shape[1], rest % shape[2]
+    features = torch.randn(len(cells), channels, generator=generator)
+    tensor = spconv.SparseConvTensor(features, torch.stack([b, z, y, x], 1).int(), list(shape), batch)
+    bev = HeightCompression(EasyDict(NUM_BEV_FEATURES=channels * shape[0]))(
+        {"encoded_spconv_tensor": tensor, "encoded_spconv_tensor_stride": 8})["spatial_features"]
+    expected = torch.zeros(batch, channels, *shape)
+    expected[b, :, z, y, x] = features
+    assert bev.shape == (batch, channels * shape[0], shape[1], shape[2])
+    assert torch.equal(bev, expected.view(batch, channels * shape[0], shape[1], shape[2]))
+    assert torch.equal(bev[b[0], 1 * shape[0] + z[0], y[0], x[0]], features[0, 1])
