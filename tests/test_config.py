@@ -254,7 +254,7 @@ def test_set_key_without_a_value_is_an_error(project):
 
 def test_profile_from_set_and_explicit_set_wins():
     cfg = load_config(CFGS / "m3.yaml", ["OPTIMIZATION.NUM_EPOCHS", "3", "PROFILE", "quick"])
-    assert (cfg.PROFILE, cfg.DATA_CONFIG.MIX.TOTAL, cfg.OPTIMIZATION.NUM_EPOCHS) == ("quick", 400, 3)
+    assert (cfg.PROFILE, cfg.DATA_CONFIG.MIX.TOTAL, cfg.OPTIMIZATION.NUM_EPOCHS) == ("quick", 1200, 3)
     paper = load_config(CFGS / "m3.yaml")
     assert (paper.PROFILE, paper.DATA_CONFIG.MIX.TOTAL, paper.OPTIMIZATION.NUM_EPOCHS, paper.OPTIMIZATION.LR) == \
         ("paper", 2100, 120, 1e-3)

@@ -37,6 +37,7 @@ FOUND_IOU = 0.1  # BEV IoU from which a prediction counts as finding a person (i
 MATCH_IOU = 0.5  # 3D IoU of a correct detection, as in the evaluation
 MARGIN_M = 2.5  # view margin around the ground-truth boxes [m]
 SIDE_Z = (-0.5, 3.0)  # height range of the side view [m]
+LABEL_CLEARANCE_AP = 0.06  # a point label goes below when a higher point this close in AP sits within 5 % of the time axis
 
 
 @dataclass(frozen=True)
@@ -233,20 +234,28 @@ def plot_pr_curves(path: str | Path, curves: dict[str, dict[str, dict]], aps: di
     return _save(figure, path)
 
 
+def labels_below(entries: list[dict]) -> list[bool]:
+    """Per entry {'ms_per_frame', 'ap'}: True where its label goes below its point, because a higher point within
+    LABEL_CLEARANCE_AP sits within 5 % of the time axis (the two labels would overlap above)."""
+    times = [entry["ms_per_frame"] for entry in entries]
+    near_ms = 0.05 * (max(times, default=0.0) - min(times, default=0.0))
+    return [any(abs(other["ms_per_frame"] - entry["ms_per_frame"]) <= near_ms
+                and 0 < other["ap"] - entry["ap"] <= LABEL_CLEARANCE_AP for other in entries) for entry in entries]
+
+
 def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
     """AP against inference time: entries [{'name', 'ms_per_frame', 'ap', 'group'}], one marker style per group."""
     figure = Figure(figsize=(6, 4.2), layout="constrained")
     ax = figure.add_subplot(1, 1, 1)
+    scored = [entry for entry in entries if entry["ap"] is not None]
+    below = dict(zip(map(id, scored), labels_below(scored)))
     for group, marker in zip(dict.fromkeys(entry["group"] for entry in entries), "osD^v<>"):
-        members = [entry for entry in entries if entry["group"] == group and entry["ap"] is not None]
+        members = [entry for entry in scored if entry["group"] == group]
         ax.scatter([entry["ms_per_frame"] for entry in members], [entry["ap"] for entry in members], marker=marker,
                    label=group)
-        previous_ap = -1.0
-        for entry in sorted(members, key=lambda entry: (entry["ms_per_frame"], entry["ap"])):
-            above = entry["ap"] >= previous_ap  # the label goes away from its left neighbour
+        for entry in members:
             ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7,
-                        xytext=(4, 4 if above else -10), textcoords="offset points")
-            previous_ap = entry["ap"]
+                        xytext=(4, -10 if below[id(entry)] else 4), textcoords="offset points")
     ax.set(xlabel="inference time [ms/frame]", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
            title="AP on the industrial split against inference time")
     ax.grid(alpha=0.3)

@@ -4,6 +4,7 @@ import numpy as np
 from pcdet_memslidar.evaluation.figures import (
     choose_example_frames,
     close_people,
+    labels_below,
     plot_ap_vs_time,
     plot_example_frames,
     plot_frame,
@@ -56,3 +57,14 @@ def test_figures_are_written(tmp_path):
         assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
     # no temporary files left
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.png", "ex.png", "f.png", "pr.png", "t.png"]
+
+
+def test_the_lower_of_two_close_points_gets_its_label_below():
+    """The reproduction's M3 / M4 case: 0.4 ms and 0.02 AP apart on a 43 ms axis; M2 and M1 stand alone."""
+    entries = [{"ms_per_frame": ms, "ap": ap} for ms, ap in
+               [(114.9, 0.331), (114.5, 0.312), (127.1, 0.246), (139.5, 0.254), (157.0, 0.494)]]
+    assert labels_below(entries) == [False, True, False, False, False]
+    # equal points: neither is higher, both labels stay above; 0.05 AP apart is close, 0.0625 is not
+    assert labels_below([{"ms_per_frame": 1.0, "ap": 0.5}] * 2) == [False, False]
+    assert labels_below([{"ms_per_frame": 1.0, "ap": 0.25}, {"ms_per_frame": 1.0, "ap": 0.3125}]) == [False, False]
+    assert labels_below([{"ms_per_frame": 1.0, "ap": 0.25}, {"ms_per_frame": 1.0, "ap": 0.3}]) == [True, False]

@@ -103,10 +103,10 @@ def test_table2_percentages():
 
 def test_report_states_what_its_profile_sets():
     settings = profile_settings(load_config(CFGS / "m3.yaml", profile="quick"))
-    assert "DATA_CONFIG.MIX.TOTAL 400" in settings and "OPTIMIZATION.NUM_EPOCHS 6" in settings
+    assert "DATA_CONFIG.MIX.TOTAL 1200" in settings and "OPTIMIZATION.NUM_EPOCHS 2" in settings
     assert 'DATA_CONFIG.DATA_PROCESSOR[0].NAME "fold_box_headings"' in settings
     assert "MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0].anchor_rotations [0]" in settings
     assert profile_settings(load_config(CFGS / "m3.yaml", profile="paper")) == []  # the config as written
     text = render_report(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.3, "M4": 0.4}) | {"profile_settings": settings})
     assert "- what the profile sets (its PROFILES entry; the rest is the config as written): `DATA_CONFIG.MIX.TOTAL " \
-           "400`; `DATA_CONFIG.POINT_CLOUD_RANGE [2.56, -23.2, 0.1, 40.96, 23.2, 2.5]`;" in text
+           "1200`; `DATA_CONFIG.POINT_CLOUD_RANGE [2.56, -23.2, 0.1, 40.96, 23.2, 2.5]`;" in text

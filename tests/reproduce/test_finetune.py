@@ -10,14 +10,14 @@ from pcdet_memslidar.runtime.pretrain import split_stages
 
 
 def test_stages_share_the_epochs_and_scale_the_fine_tuning_lr(tmp_path):
-    cfg = model_config("M5", "quick", tmp_path, ["PRETRAIN.FINETUNE_LR_SCALE", "0.5"])  # 6 epochs, LR 0.002
+    cfg = model_config("M5", "quick", tmp_path, ["PRETRAIN.FINETUNE_LR_SCALE", "0.5"])  # 2 epochs, LR 0.002
     pretraining, finetuning = split_stages(cfg)
     assert [entry.NAME for entry in pretraining.DATA_CONFIG.MIX.SOURCES] == ["sim"]
     assert [entry.NAME for entry in finetuning.DATA_CONFIG.MIX.SOURCES] == ["real"]
-    assert (pretraining.OPTIMIZATION.NUM_EPOCHS, finetuning.OPTIMIZATION.NUM_EPOCHS) == (3, 3)
+    assert (pretraining.OPTIMIZATION.NUM_EPOCHS, finetuning.OPTIMIZATION.NUM_EPOCHS) == (1, 1)
     assert (pretraining.OPTIMIZATION.LR, finetuning.OPTIMIZATION.LR) == (0.002, 0.001)
     assert "PRETRAIN" not in pretraining and "PRETRAIN" not in finetuning and "PRETRAIN" in cfg
-    assert cfg.OPTIMIZATION.NUM_EPOCHS == 6  # the config itself is unchanged
+    assert cfg.OPTIMIZATION.NUM_EPOCHS == 2  # the config itself is unchanged
     m3 = model_config("M3", "quick", tmp_path)
     assert split_stages(m3) == (None, m3)
 

@@ -15,33 +15,33 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def test_ratio_points_keep_the_total_and_round_as_table2(tmp_path):
-    base = model_config("M3", "quick", tmp_path)  # MIX.TOTAL 400, 6 epochs
+    base = model_config("M3", "quick", tmp_path)  # MIX.TOTAL 1200, 2 epochs
     points = ratio_points(base)
     assert [point.name for point in points] == [f"sim_{share:03d}" for share in range(0, 101, 10)]
-    assert [point.counts["sim"] for point in points] == list(range(0, 401, 40))
-    assert all(point.counts["sim"] + point.counts["real"] == 400 and point.epochs == 6 for point in points)
+    assert [point.counts["sim"] for point in points] == list(range(0, 1201, 120))
+    assert all(point.counts["sim"] + point.counts["real"] == 1200 and point.epochs == 2 for point in points)
     base.DATA_CONFIG.MIX.TOTAL = 25  # 2.5 / 22.5: largest remainder, ties to the first source
     assert [(point.counts["sim"], point.counts["real"]) for point in ratio_points(base, (10, 30, 50))] == \
         [(3, 22), (8, 17), (13, 12)]
 
 
 def test_real_budget_points_train_the_recipes_steps(tmp_path):
-    points = real_budget_points(model_config("M3", "quick", tmp_path))  # 400 frames x 6 epochs
+    points = real_budget_points(model_config("M3", "quick", tmp_path))  # 1200 frames x 2 epochs
     assert [(point.counts["real"], point.counts["sim"], point.epochs) for point in points] == [
-        (40, 0, 60), (100, 0, 24), (200, 0, 12), (400, 0, 6),
-        (40, 200, 10), (100, 200, 8), (200, 200, 6), (400, 200, 4)]
-    assert {point.group for point in points} == {"real only", "real + 200 sim"}
+        (120, 0, 20), (300, 0, 8), (600, 0, 4), (1200, 0, 2),
+        (120, 600, 3), (300, 600, 3), (600, 600, 2), (1200, 600, 1)]
+    assert {point.group for point in points} == {"real only", "real + 600 sim"}
     with pytest.raises(ConfigError, match="0 % of the real pool"):
         real_budget_points(model_config("M3", "quick", tmp_path), (0, 50))
 
 
 def test_a_point_config_reads_exactly_its_counts(tmp_path):
     base = model_config("M3", "quick", tmp_path)
-    point = real_budget_points(base)[4]  # 40 real + 200 sim, 10 epochs
+    point = real_budget_points(base)[4]  # 120 real + 600 sim, 3 epochs
     cfg = point_config(base, point)
     sources = {source.name: source.count for source in resolve_sources(cfg.DATA_CONFIG.MIX, tmp_path)}
-    assert sources == {"sim": 200, "real": 40} and cfg.OPTIMIZATION.NUM_EPOCHS == 10
-    assert base.OPTIMIZATION.NUM_EPOCHS == 6 and base.DATA_CONFIG.MIX.SOURCES[0].RATIO == 0.5  # base untouched
+    assert sources == {"sim": 600, "real": 120} and cfg.OPTIMIZATION.NUM_EPOCHS == 3
+    assert base.OPTIMIZATION.NUM_EPOCHS == 2 and base.DATA_CONFIG.MIX.SOURCES[0].RATIO == 0.5  # base untouched
 
 
 def test_annotations_replaced_reads_the_real_only_curve():
