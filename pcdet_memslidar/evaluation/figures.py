@@ -37,7 +37,7 @@ FOUND_IOU = 0.1  # BEV IoU from which a prediction counts as finding a person (i
 MATCH_IOU = 0.5  # 3D IoU of a correct detection, as in the evaluation
 MARGIN_M = 2.5  # view margin around the ground-truth boxes [m]
 SIDE_Z = (-0.5, 3.0)  # height range of the side view [m]
-LABEL_CLEARANCE_AP = 0.06  # a point label goes below when a higher point this close in AP sits within 5 % of the time axis
+LABEL_CLEARANCE_AP = 0.06  # a label goes below its point when a point this much higher is within 5 % of the time axis
 
 
 @dataclass(frozen=True)
