@@ -13,7 +13,7 @@ from pcdet_memslidar.grid import check_config_grid
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
 
-@pytest.mark.parametrize("profile, total, grid", [("paper", 2100, [768, 928, 40]), ("quick", 400, [384, 464, 40]),
+@pytest.mark.parametrize("profile, total, grid", [("paper", 2100, [768, 928, 40]), ("quick", 1200, [384, 464, 40]),
                                                   ("smoke", 20, [384, 464, 40])])
 def test_table2_counts_and_grids_of_the_shipped_cfgs(profile, total, grid):
     expected = {"m1": (0.0, 1.0), "m2": (1.0, 0.0), "m3": (0.5, 0.5), "m4": (0.7, 0.3)}
