@@ -3,7 +3,7 @@ tracking, and frames/s end to end (read, normalise, voxelise, infer, track, writ
 
     pip install -e ".[bench]"
     python tools/benchmark_tracking.py --cfg cfgs/m3.yaml --profile quick \
-        --ckpt output/reproduce/quick/models/oracle/seed_0/ckpt/checkpoint_epoch_6.pth
+        --ckpt output/reproduce/quick/models/oracle/seed_0/ckpt/checkpoint_epoch_2.pth
 
 Sequences: `memslidar simulate --domain industrial --sequence LENGTH --seed S`, S = SEED_BASE, SEED_BASE + 1, ...
 (kept in --out/sequences). Tracking: evaluation.tracking (motmetrics; a box within 0.5 m of a person's BEV centre).
