@@ -248,14 +248,14 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
     figure = Figure(figsize=(6, 4.2), layout="constrained")
     ax = figure.add_subplot(1, 1, 1)
     scored = [entry for entry in entries if entry["ap"] is not None]
-    below = dict(zip(map(id, scored), labels_below(scored)))
+    placed = list(zip(scored, labels_below(scored)))
     for group, marker in zip(dict.fromkeys(entry["group"] for entry in entries), "osD^v<>"):
-        members = [entry for entry in scored if entry["group"] == group]
-        ax.scatter([entry["ms_per_frame"] for entry in members], [entry["ap"] for entry in members], marker=marker,
-                   label=group)
-        for entry in members:
+        members = [(entry, below) for entry, below in placed if entry["group"] == group]
+        ax.scatter([entry["ms_per_frame"] for entry, _ in members], [entry["ap"] for entry, _ in members],
+                   marker=marker, label=group)
+        for entry, below in members:
             ax.annotate(entry["name"], (entry["ms_per_frame"], entry["ap"]), fontsize=7,
-                        xytext=(4, -10 if below[id(entry)] else 4), textcoords="offset points")
+                        xytext=(4, -10 if below else 4), textcoords="offset points")
     ax.set(xlabel="inference time [ms/frame]", ylabel="AP 3D R40 (IoU 0.5)", ylim=(-0.02, 1.02),
            title="AP on the industrial split against inference time")
     ax.grid(alpha=0.3)
