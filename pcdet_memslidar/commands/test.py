@@ -1,21 +1,27 @@
 """`memslidar test` / tools/test.py: evaluate one checkpoint (--ckpt) or all of a run (--eval_all) on the test
-split with OpenPCDet's flags (runtime.predict) and print AP 3D / BEV at IoU 0.5.
-Output: <run>/eval/epoch_N/<split>/[<eval_tag>/]{result.pkl, log}."""
+split with OpenPCDet's flags (runtime.predict) and print AP 3D / BEV at IoU 0.5; with --diagnose also which part
+of a box costs the AP (evaluation.diagnose). Another split: --set DATA_CONFIG.DATA_SPLIT.test val.
+Output: <run>/eval/epoch_N/<split>/[<eval_tag>/]{result.pkl, log[, diagnosis.json]}."""
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
+import pickle
 import time
+from pathlib import Path
 
 from tensorboardX import SummaryWriter
 
 from pcdet_memslidar.commands.options import add_openpcdet_arguments, setup_experiment
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.evaluation.diagnose import extent_agreement, format_diagnosis, part_ablation
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.experiment import ap_line, scalars, test_split
 from pcdet_memslidar.runtime.predict import predict, test_loader
+from pcdet_memslidar.utils.atomic import write_text
 
 POLL_SECONDS = 30
 
@@ -26,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval_all", action="store_true", default=False,
                         help="evaluate every checkpoint_epoch_N.pth of --ckpt_dir from --start_epoch on")
     parser.add_argument("--ckpt_dir", default=None, help="default <run>/ckpt")
+    parser.add_argument("--diagnose", action="store_true", default=False,
+                        help="also print the AP with each part of the boxes replaced by the ground truth's and how "
+                             "predicted extents follow the labels (diagnosis.json beside result.pkl)")
     parser.add_argument("--infer_time", action="store_true", default=False, help="accepted; ms/frame is always "
                                                                                  "logged")
 
@@ -39,6 +48,16 @@ def _wait_for_checkpoints(ckpt_dir, start_epoch: int, max_waiting_mins: int, log
             return found
         logger.info(f"waiting for checkpoints in {ckpt_dir} ...")
         time.sleep(POLL_SECONDS)
+
+
+def diagnose(dataset, result_dir: Path) -> str:
+    """Diagnosis of the predictions in result_dir/result.pkl (evaluation.diagnose): written to
+    result_dir/diagnosis.json, returned as text."""
+    gt_annos, dt_annos = dataset.aligned_annos(pickle.loads((result_dir / "result.pkl").read_bytes()))
+    ablation, agreement = part_ablation(gt_annos, dt_annos), extent_agreement(gt_annos, dt_annos)
+    write_text(result_dir / "diagnosis.json", json.dumps({"part_ablation": ablation, "extent_agreement": agreement},
+                                                         indent=1))
+    return format_diagnosis(ablation, agreement)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -62,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
         result = predict(cfg, args.ckpt, eval_dir, logger, process, loader=test_data, save_to_file=args.save_to_file)
         if process.rank == 0:
             print(ap_line(result), flush=True)
+            if args.diagnose:
+                print(diagnose(test_data[0], eval_dir), flush=True)
         return 0
 
     ckpt_dir = args.ckpt_dir or output_dir / "ckpt"
@@ -72,10 +93,12 @@ def run(args: argparse.Namespace) -> int:
     tb_log = SummaryWriter(str(eval_dir / f"tensorboard_{split}")) if process.rank == 0 else None
     for ckpt in checkpoints:
         epoch = checkpoint_epoch(ckpt)
-        result = predict(cfg, ckpt, eval_dir / f"epoch_{epoch}" / split, logger, process, loader=test_data,
-                         save_to_file=args.save_to_file)
+        result_dir = eval_dir / f"epoch_{epoch}" / split
+        result = predict(cfg, ckpt, result_dir, logger, process, loader=test_data, save_to_file=args.save_to_file)
         if process.rank == 0:
             print(f"epoch {epoch}: {ap_line(result)}", flush=True)
+            if args.diagnose:
+                print(diagnose(test_data[0], result_dir), flush=True)
             for key, value in scalars(result).items():
                 tb_log.add_scalar(key, value, epoch)
     if tb_log is not None:

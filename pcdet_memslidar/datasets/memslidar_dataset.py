@@ -134,6 +134,17 @@ class MEMSLidarDataset(*_template_bases()):
                  "boxes_lidar": np.asarray(info["annos"]["gt_boxes_lidar"], dtype=np.float64).reshape(-1, 7)}
                 for info in self.infos]
 
+    def aligned_annos(self, det_annos: list[dict]) -> tuple[list[dict], list[dict]]:
+        """(gt_annos(), det_annos in the same frame order, an empty anno for a frame without detections);
+        ValueError for detections of frames that are not in this split."""
+        gt_annos = self.gt_annos()
+        by_frame = {str(anno["frame_id"]): anno for anno in det_annos}
+        unknown = sorted(set(by_frame) - {anno["frame_id"] for anno in gt_annos})
+        if unknown:
+            raise ValueError(f"detections for frames not in split '{self.split}': {unknown[:5]}")
+        empty = {"name": np.zeros(0, dtype=str), "score": np.zeros(0), "boxes_lidar": np.zeros((0, 7))}
+        return gt_annos, [by_frame.get(anno["frame_id"], empty) for anno in gt_annos]
+
     def evaluation(self, det_annos: list[dict], class_names, **kwargs) -> tuple[str, dict]:
         """AP (3D / BEV IoU 0.5, R40 / R11, per distance bin) of det_annos against this split's ground truth.
 
@@ -142,13 +153,7 @@ class MEMSLidarDataset(*_template_bases()):
         prefixed with '<class>/' when there is more than one class.
         """
         from ..evaluation import evaluate, format_results
-        gt_annos = self.gt_annos()
-        by_frame = {str(anno["frame_id"]): anno for anno in det_annos}
-        unknown = sorted(set(by_frame) - {anno["frame_id"] for anno in gt_annos})
-        if unknown:
-            raise ValueError(f"detections for frames not in split '{self.split}': {unknown[:5]}")
-        empty = {"name": np.zeros(0, dtype=str), "score": np.zeros(0), "boxes_lidar": np.zeros((0, 7))}
-        dt_annos = [by_frame.get(anno["frame_id"], empty) for anno in gt_annos]
+        gt_annos, dt_annos = self.aligned_annos(det_annos)
         texts, scalars = [], {}
         for class_name in class_names:
             result = evaluate(gt_annos, dt_annos, class_name=class_name)

@@ -91,12 +91,16 @@ class SyntheticPersonDataset(Dataset):
                           "frame_id": batch_dict["frame_id"][index]})
         return annos
 
+    def aligned_annos(self, det_annos: list[dict]) -> tuple[list[dict], list[dict]]:
+        """(ground truth of the frames of det_annos, det_annos), frame by frame."""
+        by_id = {frame["frame_id"]: frame for frame in self.frames}
+        gt_annos = [{"name": by_id[d["frame_id"]]["gt_names"], "boxes_lidar": by_id[d["frame_id"]]["gt_boxes"]}
+                    for d in det_annos]
+        return gt_annos, det_annos
+
     def evaluation(self, det_annos: list[dict], class_names, **kwargs) -> tuple[str, dict]:
         """AP of the Pedestrian class at IoU 0.5 (pcdet_memslidar.evaluation) -> (report text, scalars)."""
         from pcdet_memslidar.evaluation import evaluate, format_results
 
-        by_id = {frame["frame_id"]: frame for frame in self.frames}
-        gt_annos = [{"name": by_id[d["frame_id"]]["gt_names"], "boxes_lidar": by_id[d["frame_id"]]["gt_boxes"]}
-                    for d in det_annos]
-        result = evaluate(gt_annos, det_annos)
+        result = evaluate(*self.aligned_annos(det_annos))
         return format_results(result), result

@@ -31,7 +31,7 @@ def bin_label(low: float, high: float) -> str:
     return f"{low:g}+m" if np.isinf(high) else f"{low:g}-{high:g}m"
 
 
-def _stack_class(annos: list[dict], class_name: str, with_score: bool, kind: str):
+def stack_class(annos: list[dict], class_name: str, with_score: bool, kind: str):
     """Boxes (B, 7), scores (B,) of `class_name` over all frames and their per-frame counts (F,)."""
     boxes, scores, counts = [], [], []
     for frame, anno in enumerate(annos):
@@ -67,8 +67,8 @@ def evaluate(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: float
     """
     if len(gt_annos) != len(dt_annos):
         raise ValueError(f"evaluate: {len(gt_annos)} ground-truth frames but {len(dt_annos)} detection frames")
-    gt_boxes, _, gt_counts = _stack_class(gt_annos, class_name, with_score=False, kind="gt")
-    dt_boxes, dt_scores, dt_counts = _stack_class(dt_annos, class_name, with_score=True, kind="dt")
+    gt_boxes, _, gt_counts = stack_class(gt_annos, class_name, with_score=False, kind="gt")
+    dt_boxes, dt_scores, dt_counts = stack_class(dt_annos, class_name, with_score=True, kind="dt")
     dt_index, gt_index, iou_bev, iou_3d = pair_ious(dt_boxes, gt_boxes, dt_counts, gt_counts)
     gt_range = np.hypot(gt_boxes[:, 0], gt_boxes[:, 1])
     dt_range = np.hypot(dt_boxes[:, 0], dt_boxes[:, 1])

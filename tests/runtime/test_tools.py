@@ -1,4 +1,5 @@
 """tools/train.py and tools/test.py end to end on synthetic frames: output layout, checkpoints, resume, AP line."""
+import json
 import struct
 
 import pytest
@@ -75,10 +76,17 @@ def test_train_then_test_then_resume(experiment, capsys):
     assert (run_dir / "eval" / "eval_with_train" / "epoch_2" / "val" / "result.pkl").is_file()
 
     capsys.readouterr()
-    assert cli.main(["test", *common, "--ckpt", str(run_dir / "ckpt" / "checkpoint_epoch_2.pth")]) == 0
-    line = capsys.readouterr().out.strip().splitlines()[-1]
-    assert line.startswith("AP@IoU0.5  3D R40 ") and "BEV R40" in line
-    assert (run_dir / "eval" / "epoch_2" / "val" / "result.pkl").is_file()
+    assert cli.main(["test", *common, "--ckpt", str(run_dir / "ckpt" / "checkpoint_epoch_2.pth"), "--diagnose"]) == 0
+    out = capsys.readouterr().out
+    line = next(line for line in out.splitlines() if line.startswith("AP@IoU0.5  3D R40 "))
+    assert "BEV R40" in line
+    result_dir = run_dir / "eval" / "epoch_2" / "val"
+    assert (result_dir / "result.pkl").is_file()
+    diagnosis = json.loads((result_dir / "diagnosis.json").read_text())
+    assert list(diagnosis["part_ablation"]) == ["as predicted", "centre x, y", "z, height", "length, width", "heading",
+                                                "all but the centre"]
+    assert f"{diagnosis['part_ablation']['as predicted']['AP3D_R40']:.4f}" == line.split()[3]  # the AP printed above
+    assert "part replaced" in out and "Predicted against labelled boxes" in out
 
     assert cli.main(["train", *common, "--epochs", "3", "--use_tqdm_to_record"]) == 0  # resumes from epoch 2
     log = sorted(run_dir.glob("log_train_*.txt"))[-1].read_text()
