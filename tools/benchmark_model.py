@@ -28,6 +28,7 @@ from pcdet_memslidar.datasets.mixing import split_sources
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.reproduce import default_jobs, run_jobs
 from pcdet_memslidar.runtime.common import get_device, set_random_seed
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
@@ -151,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=10, help="timed frames / steps per configuration")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--batch_size", type=int, default=2, help="frames per timed training step")
+    parser.add_argument("--precisions", nargs="+", choices=PRECISIONS, default=[PRECISIONS[0]],
+                        help="inference precisions timed per profile (default: %(default)s; training is fp32)")
     parser.add_argument("--variants", action="store_true",
                         help="also the speed-vs-error table: every variant trained with the --profile's budget")
     parser.add_argument("--profile", default="quick", help="the profile whose recipe the variants change")
@@ -162,21 +165,26 @@ def main(argv: list[str] | None = None) -> int:
     device = get_device()
     rows = []
 
-    def measure(name: str, cfg) -> None:
+    def measure(name: str, cfg, precision: str = PRECISIONS[0]) -> None:
         dataset, source = frames_for(cfg, training=False, count=args.frames + args.warmup)
         set_random_seed(0)
         model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), dataset).to(device)
-        row = {"config": name, "voxel_xy_m": voxel_step(cfg).VOXEL_SIZE[0],
+        model.set_precision(precision)
+        row = {"config": name, "precision": precision, "voxel_xy_m": voxel_step(cfg).VOXEL_SIZE[0],
                "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS),
                "head_stride": cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0]["feature_map_stride"], "frames": source,
                "params": sum(p.numel() for p in model.parameters())}
         row["infer_ms"], row["infer_ms_per_module"] = time_inference(model, dataset, args.frames, args.warmup, device)
-        row["train_step_ms"] = time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2), device)
+        if precision == PRECISIONS[0]:  # training is fp32 whatever the inference precision
+            row["train_step_ms"] = time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2),
+                                                   device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
     for profile in args.profiles:
-        measure(f"{Path(args.cfg).stem}/{profile}", load_config(args.cfg, args.set_cfgs, profile=profile))
+        for precision in args.precisions:
+            measure(f"{Path(args.cfg).stem}/{profile}", load_config(args.cfg, args.set_cfgs, profile=profile),
+                    precision)
     if args.variants:
         base = load_config(args.cfg, args.set_cfgs, profile=args.profile)
         variants = {f"{args.profile} {name}": apply_variant(base, **changes) for name, changes in VARIANTS.items()}
@@ -186,8 +194,8 @@ def main(argv: list[str] | None = None) -> int:
         for row in rows:
             row.update(trained.get(row["config"], {}))
 
-    header = ["config", "voxel_xy_m", "bev_filters", "head_stride", "params", "frames", "infer_ms", "train_step_ms",
-              "train_minutes", "val_AP3D_R40", "AP3D_R40"]
+    header = ["config", "precision", "voxel_xy_m", "bev_filters", "head_stride", "params", "frames", "infer_ms",
+              "train_step_ms", "train_minutes", "val_AP3D_R40", "AP3D_R40"]
     print(f"\ndevice {device}, {args.threads} torch threads, batch {args.batch_size} for train steps, "
           f"median of {args.frames} frames\n")
     print("| " + " | ".join(header) + " |\n|" + "---|" * len(header))
@@ -199,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\ninference ms per module (medians; they need not add up to infer_ms, itself a median)\n")
     print("| config | " + " | ".join(modules) + " |\n|" + "---|" * (len(modules) + 1))
     for row in rows:
-        print(f"| {row['config']} | " + " | ".join(f"{row['infer_ms_per_module'][m]:.1f}" for m in modules) + " |")
+        print(f"| {row['config']}, {row['precision']} | "
+              + " | ".join(f"{row['infer_ms_per_module'][m]:.1f}" for m in modules) + " |")
     write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows}, indent=2))
     return 0
 

@@ -8,10 +8,12 @@ tracking, and frames/s end to end (read, normalise, voxelise, infer, track, writ
 Sequences: `memslidar simulate --domain industrial --sequence LENGTH --seed S`, S = SEED_BASE, SEED_BASE + 1, ...
 (kept in --out/sequences). Tracking: evaluation.tracking (motmetrics; a box within 0.5 m of a person's BEV centre).
 AP 3D R40 at IoU 0.5 of the detections detect keeps (score >= TRACKER.MIN_SCORE), all of them and those of confirmed
-tracks only. Speed: the checkpoint, then an untrained SECOND of each --speed-profiles entry (the paper profile cannot
-be trained on a CPU; the weights change the time only through the boxes NMS gets) over the first sequence, next
-to each profile's compute floor: the FLOPs of one forward pass on its first frame over this machine's fp32 GEMM rate
-(utils.compute), the least ms/frame any fp32 implementation of that model needs on these threads.
+tracks only, at each --precisions entry (the inference precision of the BEV backbone and head: what bf16 costs in
+AP and tracking). Speed: the checkpoint, then an untrained SECOND of each --speed-profiles entry at each precision
+(the paper profile cannot be trained on a CPU; the weights change the time only through the boxes NMS gets) over the
+first sequence, next to each profile's compute floor: the FLOPs of one forward pass on its first frame over this
+machine's fp32 GEMM rate (utils.compute), the least ms/frame any fp32 implementation of that model needs on these
+threads.
 Results: Markdown on stdout, JSON in --out/tracking_benchmark.json.
 """
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
+from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.detect import DETECTIONS_FILE, DetectOptions, FrameVoxeliser, detect
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 from pcdet_memslidar.sim.domains import get_domain
@@ -96,6 +99,8 @@ def main() -> None:
                              "for the whole sequence, so long ones keep mostly people who stand)")
     parser.add_argument("--speed-profiles", nargs="*", default=["quick", "paper"],
                         help="profiles timed with an untrained SECOND (default: %(default)s)")
+    parser.add_argument("--precisions", nargs="+", choices=PRECISIONS, default=list(PRECISIONS),
+                        help="inference precisions to run (default: %(default)s)")
     parser.add_argument("--threads", type=int, default=available_cores(), help="torch threads (default: the cores)")
     parser.add_argument("--out", type=Path, default=Path("output/benchmark/tracking"))
     args = parser.parse_args()
@@ -103,40 +108,46 @@ def main() -> None:
     cfg = load_config(args.cfg, profile=args.profile)
     roots = sequences(args.out, args.sequences, args.length)
 
-    runs, per_sequence = [], []
-    for root in roots:
-        summary = detect(cfg, args.ckpt, DetectOptions(src=root, out=args.out / "detect" / root.name, fmt="kitti"))
-        records = [json.loads(line) for line in (args.out / "detect" / root.name / DETECTIONS_FILE).open()]
-        gt = KittiLayout(root).training / "label_2"
-        all_ap = ap_summary(evaluate_folders(gt, args.out / "detect" / root.name / "labels")[0])["AP3D_R40"]
-        tracked = tracked_labels(records, args.out / "tracked_labels" / root.name)
-        tracked_ap = ap_summary(evaluate_folders(gt, tracked)[0])["AP3D_R40"]
-        runs.append((sequence_truth(root), records))
-        per_sequence.append({"sequence": root.name, "AP3D_R40": all_ap, "AP3D_R40_tracked": tracked_ap,
-                             **mot_metrics(runs[-1:]), "speed": summary})
-    pooled = mot_metrics(runs)
-    speeds = {f"{args.profile} (trained)": per_sequence[0]["speed"]}
+    per_sequence, pooled, speeds = {}, {}, {}
+    for precision in args.precisions:
+        runs, rows = [], []
+        for root in roots:
+            out = args.out / "detect" / precision / root.name
+            summary = detect(cfg, args.ckpt, DetectOptions(src=root, out=out, fmt="kitti", precision=precision))
+            records = [json.loads(line) for line in (out / DETECTIONS_FILE).open()]
+            gt = KittiLayout(root).training / "label_2"
+            all_ap = ap_summary(evaluate_folders(gt, out / "labels")[0])["AP3D_R40"]
+            tracked = tracked_labels(records, args.out / "tracked_labels" / precision / root.name)
+            tracked_ap = ap_summary(evaluate_folders(gt, tracked)[0])["AP3D_R40"]
+            runs.append((sequence_truth(root), records))
+            rows.append({"sequence": root.name, "AP3D_R40": all_ap, "AP3D_R40_tracked": tracked_ap,
+                         **mot_metrics(runs[-1:]), "speed": summary})
+        per_sequence[precision], pooled[precision] = rows, mot_metrics(runs)
+        speeds[f"{args.profile} (trained), {precision}"] = rows[0]["speed"]
     gemm_rate, floors = gemm_flops_per_s(), {}
     for profile in args.speed_profiles:
         speed_cfg = load_config(args.cfg, profile=profile)
         model = untrained_model(speed_cfg)
         checkpoint = save_checkpoint(checkpoint_state(model, epoch=0), args.out / f"untrained_{profile}.pth")
-        name = f"{profile} (untrained)"
-        speeds[name] = detect(speed_cfg, checkpoint, DetectOptions(src=roots[0], out=args.out / "speed" / profile,
-                                                                   fmt="kitti"))
+        for precision in args.precisions:
+            speeds[f"{profile} (untrained), {precision}"] = detect(
+                speed_cfg, checkpoint, DetectOptions(src=roots[0], out=args.out / "speed" / profile / precision,
+                                                     fmt="kitti", precision=precision))
         flops = frame_flops(model, roots[0])
         floor = floor_ms(flops, gemm_rate)
-        floors[name] = {"gflop_per_frame": flops / 1e9, "floor_ms": floor, "max_frames_per_s": 1000.0 / floor}
+        floors[f"{profile} (untrained), fp32"] = {"gflop_per_frame": flops / 1e9, "floor_ms": floor,
+                                                  "max_frames_per_s": 1000.0 / floor}
 
     print(f"# memslidar detect on {len(roots)} simulated industrial sequences of {args.length} frames "
           f"({args.threads} torch threads, {args.ckpt})\n")
-    print("| sequence | AP3D R40 | AP3D R40 tracked only | MOTA | IDF1 | ID switches | FP | misses | people |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for row in per_sequence + [{"sequence": "all (pooled)", "AP3D_R40": float("nan"),
-                                "AP3D_R40_tracked": float("nan"), **pooled}]:
-        print(f"| {row['sequence']} | {row['AP3D_R40']:.3f} | {row['AP3D_R40_tracked']:.3f} | {row['mota']:.3f} | "
-              f"{row['idf1']:.3f} | {row['num_switches']:.0f} | {row['num_false_positives']:.0f} | "
-              f"{row['num_misses']:.0f} | {row['num_unique_objects']:.0f} |")
+    print("| precision | sequence | AP3D R40 | AP3D R40 tracked only | MOTA | IDF1 | ID switches | FP | misses | "
+          "people |\n|---|---|---|---|---|---|---|---|---|---|")
+    for precision, rows in per_sequence.items():
+        for row in rows + [{"sequence": "all (pooled)", "AP3D_R40": float("nan"), "AP3D_R40_tracked": float("nan"),
+                            **pooled[precision]}]:
+            print(f"| {precision} | {row['sequence']} | {row['AP3D_R40']:.3f} | {row['AP3D_R40_tracked']:.3f} | "
+                  f"{row['mota']:.3f} | {row['idf1']:.3f} | {row['num_switches']:.0f} | "
+                  f"{row['num_false_positives']:.0f} | {row['num_misses']:.0f} | {row['num_unique_objects']:.0f} |")
     stages = " | ".join(f"{stage} ms" for stage in next(iter(speeds.values()))["ms_per_frame"])
     print(f"\n| model | frames/s | {stages} | detections/frame |\n|---|---|" + "---|" * 6)
     for name, summary in speeds.items():

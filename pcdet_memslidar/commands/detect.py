@@ -7,7 +7,7 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.commands.options import add_mount_arguments, add_profile, add_set
+from pcdet_memslidar.commands.options import add_mount_arguments, add_precision, add_profile, add_set
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.monitor.detect import FORMATS, FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect
@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--save-points", action="store_true",
                         help="also write each frame's points (points/*.bin); by default only detections are kept")
     parser.add_argument("--plot", action="store_true", help="a bird's-eye PNG per frame (plots/*.png)")
+    add_precision(parser)
     add_profile(parser)
     add_set(parser)
 
@@ -49,7 +50,8 @@ def run(args: argparse.Namespace) -> int:
     options = DetectOptions(src=args.src, out=out, fmt=args.fmt, mount=args.mount,
                             estimate_ground=args.estimate_ground,
                             zones=read_zones(args.zones) if args.zones else None, batch_size=args.batch_size,
-                            frame_period_s=args.frame_period, save_points=args.save_points, plot=args.plot)
+                            frame_period_s=args.frame_period, save_points=args.save_points, plot=args.plot,
+                            precision=args.precision)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     summary = detect(cfg, args.ckpt, options, create_logger(), device)
     print(f"{summary['frames']} frames: {summary['detections']} detections, {summary['tracks']} tracks, "

@@ -34,6 +34,16 @@ def add_workers(parser: argparse.ArgumentParser) -> None:
                              "loading in the training process is fastest; up to 4 with CUDA)")
 
 
+def add_precision(parser: argparse.ArgumentParser) -> None:
+    """--precision fp32|bf16: inference precision of the BEV backbone and the head (models.detector.PRECISIONS)."""
+    from pcdet_memslidar.models.detector import PRECISIONS  # here: the other commands need not import the model
+
+    parser.add_argument("--precision", choices=PRECISIONS, default=PRECISIONS[0],
+                        help="inference precision of the BEV backbone and head (default %(default)s; bf16 is fast on "
+                             "CPUs with AMX or AVX512-BF16 and on GPUs, slow elsewhere; the sparse 3D part, box "
+                             "decoding and NMS stay fp32)")
+
+
 def _mount(text: str) -> Mount:
     try:
         return ground.parse_mount(text)

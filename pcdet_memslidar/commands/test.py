@@ -13,7 +13,7 @@ from pathlib import Path
 
 from tensorboardX import SummaryWriter
 
-from pcdet_memslidar.commands.options import add_openpcdet_arguments, setup_experiment
+from pcdet_memslidar.commands.options import add_openpcdet_arguments, add_precision, setup_experiment
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.diagnose import extent_agreement, format_diagnosis, part_ablation
@@ -37,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "predicted extents follow the labels (diagnosis.json beside result.pkl)")
     parser.add_argument("--infer_time", action="store_true", default=False, help="accepted; ms/frame is always "
                                                                                  "logged")
+    add_precision(parser)
 
 
 def _wait_for_checkpoints(ckpt_dir, start_epoch: int, max_waiting_mins: int, logger) -> list:
@@ -78,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     test_data = test_loader(cfg, logger, process, args.workers)
 
     if not args.eval_all:
-        result = predict(cfg, args.ckpt, eval_dir, logger, process, loader=test_data, save_to_file=args.save_to_file)
+        result = predict(cfg, args.ckpt, eval_dir, logger, process, loader=test_data, save_to_file=args.save_to_file,
+                         precision=args.precision)
         if process.rank == 0:
             print(ap_line(result), flush=True)
             if args.diagnose:
@@ -94,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     for ckpt in checkpoints:
         epoch = checkpoint_epoch(ckpt)
         result_dir = eval_dir / f"epoch_{epoch}" / split
-        result = predict(cfg, ckpt, result_dir, logger, process, loader=test_data, save_to_file=args.save_to_file)
+        result = predict(cfg, ckpt, result_dir, logger, process, loader=test_data, save_to_file=args.save_to_file,
+                         precision=args.precision)
         if process.rank == 0:
             print(f"epoch {epoch}: {ap_line(result)}", flush=True)
             if args.diagnose:

@@ -94,8 +94,8 @@ class AnchorHeadSingle(nn.Module):
         """Decode head outputs -> (B, A, num_class) logits, (B, A, 7) boxes with heading from the direction bin."""
         anchors = self.flat_anchors()
         num_anchors = anchors.shape[0]
-        batch_cls_preds = cls_preds.view(batch_size, num_anchors, -1).float()
-        batch_box_preds = self.box_coder.decode_torch(box_preds.view(batch_size, num_anchors, -1),
+        batch_cls_preds = cls_preds.view(batch_size, num_anchors, -1).float()  # fp32 from here (bf16 inference)
+        batch_box_preds = self.box_coder.decode_torch(box_preds.view(batch_size, num_anchors, -1).float(),
                                                       anchors.unsqueeze(0).expand(batch_size, -1, -1))
         if dir_cls_preds is not None:
             cfg = self.model_cfg

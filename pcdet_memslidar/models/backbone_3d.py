@@ -1,13 +1,16 @@
 """Sparse 3D backbone of SECOND (spconv 2.x), OpenPCDet's VoxelBackBone8x with its state-dict layout."""
 from __future__ import annotations
 
+import contextlib
 from functools import partial
 
 import numpy as np
 import spconv.pytorch as spconv
+import torch
 from torch import nn
 
 from pcdet_memslidar.grid import SPARSE_OUTPUT_CHANNELS, SPARSE_STRIDE, sparse_output_shape
+from pcdet_memslidar.models import rulebook
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
 
 patch_spconv()
@@ -30,7 +33,9 @@ def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: s
 class VoxelBackBone8x(nn.Module):
     """Sparse convs 16-32-64-64 channels, 8x downsampling, then a (3,1,1) z-conv to 128 channels.
 
-    The sparse convs run on one torch thread: spconv's CPU kernels race with more (see spconv_cpu).
+    On a CPU, inference (eval mode, no grad) runs the convs with models.rulebook on all threads (in bf16 under
+    autocast); otherwise spconv runs them, in fp32, on one torch thread on a CPU (its CPU kernels race with more, see
+    spconv_cpu).
     """
 
     def __init__(self, model_cfg, input_channels: int, grid_size, **kwargs):
@@ -73,16 +78,27 @@ class VoxelBackBone8x(nn.Module):
                 features.new_zeros(0, self.num_point_features), batch_dict["voxel_coords"].new_zeros(0, 4).int(),
                 sparse_output_shape(self.sparse_shape), batch_dict["batch_size"])
             return batch_dict
-        with single_thread():
+        on_cpu = features.device.type == "cpu"
+        use_rulebook = on_cpu and not self.training and not torch.is_grad_enabled()
+        rulebooks = {}  # indice_key -> Rulebook, shared as spconv shares its indices
+
+        def step(module, tensor):
+            return rulebook.run(module, tensor, rulebooks) if use_rulebook else module(tensor)
+
+        with contextlib.ExitStack() as spconv_settings:
+            if not use_rulebook:  # spconv: fp32, on one thread on a CPU
+                spconv_settings.enter_context(torch.autocast(features.device.type, enabled=False))
+                if on_cpu:
+                    spconv_settings.enter_context(single_thread())
             x = spconv.SparseConvTensor(features=features,
                                         indices=batch_dict["voxel_coords"].int(),
                                         spatial_shape=self.sparse_shape, batch_size=batch_dict["batch_size"])
-            x = self.conv_input(x)
-            x_conv1 = self.conv1(x)
-            x_conv2 = self.conv2(x_conv1)
-            x_conv3 = self.conv3(x_conv2)
-            x_conv4 = self.conv4(x_conv3)
-            out = self.conv_out(x_conv4)
+            x = step(self.conv_input, x)
+            x_conv1 = step(self.conv1, x)
+            x_conv2 = step(self.conv2, x_conv1)
+            x_conv3 = step(self.conv3, x_conv2)
+            x_conv4 = step(self.conv4, x_conv3)
+            out = step(self.conv_out, x_conv4)
         batch_dict["encoded_spconv_tensor"] = out
         batch_dict["multi_scale_3d_features"] = {"x_conv1": x_conv1, "x_conv2": x_conv2, "x_conv3": x_conv3,
                                                  "x_conv4": x_conv4}

@@ -13,6 +13,11 @@ from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.post_processing import post_processing, size_limits
 from pcdet_memslidar.models.vfe import MeanVFE
 
+# inference precision of the convolutions (sparse 3D on a CPU, BEV backbone, head: bf16 products, fp32 sums of
+# offsets, BatchNorm and boxes), fastest on CPUs with bf16 matrix units (AMX, AVX512-BF16); spconv on a GPU, box
+# decoding and NMS stay fp32, and training is fp32
+PRECISIONS = ("fp32", "bf16")
+
 # OpenPCDet's registries: module NAME in the config -> class
 VFES = {"MeanVFE": MeanVFE}
 BACKBONES_3D = {"VoxelBackBone8x": VoxelBackBone8x}
@@ -35,6 +40,7 @@ class SECONDNet(nn.Module):
     """
 
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
+    precision = "fp32"  # one of PRECISIONS, for inference (set_precision)
 
     def __init__(self, model_cfg, num_class: int, dataset):
         super().__init__()
@@ -71,9 +77,20 @@ class SECONDNet(nn.Module):
     def update_global_step(self) -> None:
         self.global_step += 1
 
+    def set_precision(self, precision: str) -> None:
+        """Inference precision of the convolutions (PRECISIONS); ConfigError for another."""
+        if precision not in PRECISIONS:
+            raise ConfigError(f"precision {precision!r}: use one of {', '.join(PRECISIONS)}")
+        self.precision = precision
+
     def forward(self, batch_dict: dict):
+        bf16 = self.precision == "bf16" and not self.training
         for module in self.module_list:
-            batch_dict = module(batch_dict)
+            if bf16 and module is self.backbone_2d:  # NHWC: oneDNN's fast layout for bf16 convolutions
+                batch_dict["spatial_features"] = batch_dict["spatial_features"].contiguous(
+                    memory_format=torch.channels_last)
+            with torch.autocast(self.global_step.device.type, dtype=torch.bfloat16, enabled=bf16):
+                batch_dict = module(batch_dict)
         if self.training:
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}

@@ -32,6 +32,7 @@ from pcdet_memslidar.io import ground, kitti
 from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
 from pcdet_memslidar.io.pointclouds import SUFFIXES
 from pcdet_memslidar.models import load_data_to_device
+from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
 from pcdet_memslidar.runtime.predict import load_detector
@@ -63,6 +64,7 @@ class DetectOptions:
     frame_period_s: float = FRAME_PERIOD_S
     save_points: bool = False
     plot: bool = False
+    precision: str = PRECISIONS[0]  # inference precision of the BEV backbone and head (models.detector.PRECISIONS)
 
 
 def resolve_format(src: Path, fmt: str) -> str:
@@ -139,7 +141,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     monitor = Monitor(TrackerConfig.from_block(cfg.get("TRACKER"), cfg.get("CFG_FILE", "the config")),
                       options.zones or [])
     voxeliser = FrameVoxeliser(cfg, logger)
-    model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger)
+    model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger, options.precision)
     batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()
@@ -175,6 +177,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
                    "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
                    "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
                    "device": str(device), "torch_threads": torch.get_num_threads(), "batch_size": batch_size,
+                   "precision": options.precision,
                    "ms_per_frame": {stage: 1000 * seconds[stage] / max(1, len(frames)) for stage in STAGES},
                    "frames_per_s": len(frames) / wall if wall > 0 else float("inf")}
         write_text(tmp / SUMMARY_FILE, json.dumps(summary, indent=1) + "\n")

@@ -11,6 +11,7 @@ import torch
 
 from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.models import build_network
+from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.runtime.checkpoint import load_params_from_file
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
 from pcdet_memslidar.runtime.experiment import Process, local_process
@@ -25,23 +26,29 @@ def test_loader(cfg, logger, process: Process | None = None, workers: int = 0):
     return dataset, loader
 
 
-def load_detector(cfg, checkpoint: str | Path, dataset, device, logger) -> tuple[torch.nn.Module, int | None]:
-    """(cfg's detector with the weights of `checkpoint`, in eval mode on `device`; the checkpoint's epoch). dataset
-    gives the grid (a DatasetTemplate); a checkpoint of another model or grid is refused, naming it."""
+def load_detector(cfg, checkpoint: str | Path, dataset, device, logger,
+                  precision: str = PRECISIONS[0]) -> tuple[torch.nn.Module, int | None]:
+    """(cfg's detector with the weights of `checkpoint`, in eval mode on `device` with the inference `precision`
+    (models.detector.PRECISIONS); the checkpoint's epoch). dataset gives the grid (a DatasetTemplate); a checkpoint of
+    another model or grid is refused, naming it."""
     model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=dataset).to(device)
     model.profile = cfg.get("PROFILE")  # named when a checkpoint of another grid is refused
+    model.set_precision(precision)
+    if precision == "bf16" and torch.device(device).type == "cpu" and not torch.cpu._is_avx512_bf16_supported():
+        logger.warning("--precision bf16 on a CPU without AVX512-BF16 or AMX: bf16 is emulated there and slower "
+                       "than fp32")
     epoch = load_params_from_file(model, checkpoint, logger, strict=True).get("epoch")
     return model.eval(), epoch
 
 
 def predict(cfg, checkpoint: str | Path, result_dir: Path, logger, process: Process | None = None, workers: int = 0,
-            loader=None, save_to_file: bool = True) -> dict:
+            loader=None, save_to_file: bool = True, precision: str = PRECISIONS[0]) -> dict:
     """Run `checkpoint` over cfg's evaluation split; returns eval_one_epoch's result (AP keys, recall,
     infer_time_ms; {} on ranks other than 0). Writes result_dir/result.pkl and, with save_to_file, KITTI labels
     with scores under eval_loop.prediction_folder(result_dir). loader: test_loader's (dataset, loader), built here
-    when None."""
+    when None; precision: load_detector's."""
     process = process or local_process()
     dataset, data_loader = loader or test_loader(cfg, logger, process, workers)
-    model, epoch = load_detector(cfg, checkpoint, dataset, process.device, logger)
+    model, epoch = load_detector(cfg, checkpoint, dataset, process.device, logger, precision)
     return eval_one_epoch(cfg, model, data_loader, epoch, logger, process.device, dist_test=process.dist,
                           result_dir=result_dir, save_to_file=save_to_file)

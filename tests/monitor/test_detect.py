@@ -67,6 +67,7 @@ def test_detect_on_the_real_recording_keeps_detections_not_points(tmp_path, bund
             assert set(detection) == {"box", "score", "track_id", "zones"} and len(detection["box"]) == 7
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["frames"], summary["format"], summary["points_written"]) == (10, "bfpc", False)
+    assert summary["precision"] == "fp32"  # the default
     assert summary["mount"]["source"] == "estimated from the ground plane"
     assert summary["detections"] == sum(len(r["detections"]) for r in records)
     # GDPR default: only detections leave; no point file of any format, no plots
@@ -78,13 +79,13 @@ def test_demo_flags_and_saved_points(tmp_path, frames_folder, smoke_checkpoint, 
     out = tmp_path / "out"
     monkeypatch.setattr(sys, "argv", ["demo.py", "--cfg_file", REPO_CFG, "--data_path", str(frames_folder), "--ckpt",
                                       str(smoke_checkpoint), "--ext", ".npy", "--out", str(out), "--save-points",
-                                      "--plot", "--profile", "smoke"])
+                                      "--plot", "--precision", "bf16", "--profile", "smoke"])
     with pytest.raises(SystemExit) as done:
         runpy.run_path("tools/demo.py", run_name="__main__")
     assert done.value.code == 0
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["frames"], summary["frames_without_points"], summary["dropped_invalid_points"]) == (3, 1, 5)
-    assert summary["format"] == "npy" and summary["points_written"] is True
+    assert summary["format"] == "npy" and summary["points_written"] is True and summary["precision"] == "bf16"
     saved = np.fromfile(out / "points" / "000000.bin", dtype=np.float32).reshape(-1, 4)
     np.testing.assert_array_equal(saved, np.load(frames_folder / "000.npy"))  # no mount: stored as read
     assert (out / "points" / "000001.bin").stat().st_size == 0

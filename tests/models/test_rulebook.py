@@ -1,0 +1,88 @@
+"""models.rulebook on hand-made cells with exact expected values: a submanifold conv at a corner of the grid and
+across frames, a stride-2 conv reaching 8 output cells, conv_out's (3, 1, 1) kernel, BatchNorm folding, and the
+layers it refuses."""
+import pytest
+import spconv.pytorch as spconv
+import torch
+from torch import nn
+
+from pcdet_memslidar.models import rulebook
+
+
+def _conv(conv: spconv.conv.SparseConvolution) -> spconv.conv.SparseConvolution:
+    """One input and one output channel; the weight of kernel offset k (z-major) is k + 1."""
+    with torch.no_grad():
+        conv.weight.copy_(torch.arange(1.0, conv.weight.numel() + 1).view_as(conv.weight))
+    return conv.eval()
+
+
+def _run(module, coords, values, shape, batch_size=1) -> dict[tuple, float]:
+    """{(b, z, y, x): output} of module on one-channel features."""
+    tensor = spconv.SparseConvTensor(torch.tensor(values, dtype=torch.float32).view(-1, 1),
+                                     torch.tensor(coords, dtype=torch.int32), shape, batch_size)
+    with torch.no_grad():
+        out = rulebook.run(module, tensor, {})
+    return {tuple(cell): value for cell, value in zip(out.indices.tolist(), out.features[:, 0].tolist())}
+
+
+def test_submanifold_conv_at_a_corner_keeps_frames_apart():
+    """Cells (0, 0, 0) = 1 and (0, 0, 1) = 10 of frame 0, (0, 0, 1) = 100 of frame 1. Offset (dz, dy, dx) has
+    k = 9 (dz + 1) + 3 (dy + 1) + dx + 1, weight k + 1: the centre 14, dx = +1 15, dx = -1 13. Neighbours outside the
+    grid and in the other frame add nothing."""
+    conv = _conv(spconv.SubMConv3d(1, 1, 3, bias=False, indice_key="subm"))
+    out = _run(conv, [[0, 0, 0, 0], [0, 0, 0, 1], [1, 0, 0, 1]], [1.0, 10.0, 100.0], [2, 2, 2], batch_size=2)
+    assert out == {(0, 0, 0, 0): 14 * 1 + 15 * 10, (0, 0, 0, 1): 14 * 10 + 13 * 1, (1, 0, 0, 1): 14 * 100}
+
+
+def test_stride_2_conv_reaches_eight_output_cells_as_spconv():
+    """Input cell (1, 1, 1) = 1, kernel 3, stride 2, padding 1: output cell o per axis takes offset k = 1 + 1 - 2 o,
+    so o = 0 takes k = 2 and o = 1 takes k = 0, and output (oz, oy, ox) is 1 + 9 kz + 3 ky + kx."""
+    conv = _conv(spconv.SparseConv3d(1, 1, 3, stride=2, padding=1, bias=False))
+    out = _run(conv, [[0, 1, 1, 1]], [1.0], [4, 4, 4])
+    expected = {(0, oz, oy, ox): 1.0 + 9 * (2 - 2 * oz) + 3 * (2 - 2 * oy) + (2 - 2 * ox)
+                for oz in (0, 1) for oy in (0, 1) for ox in (0, 1)}
+    assert out == expected
+    assert out[(0, 0, 0, 0)] == 27.0 and out[(0, 1, 1, 1)] == 1.0
+    with torch.no_grad():
+        reference = conv(spconv.SparseConvTensor(torch.ones(1, 1), torch.tensor([[0, 1, 1, 1]], dtype=torch.int32),
+                                                 [4, 4, 4], 1))
+    assert {tuple(c): v for c, v in zip(reference.indices.tolist(), reference.features[:, 0].tolist())} == expected
+
+
+def test_z_conv_of_conv_out_and_its_output_grid():
+    """Kernel (3, 1, 1), stride (2, 1, 1), no padding, depth 5 -> 2: z = 2 reaches o = 1 by k = 0 (weight 1) and
+    o = 0 by k = 2 (weight 3); z = 4 reaches o = 1 by k = 2 only."""
+    conv = _conv(spconv.SparseConv3d(1, 1, (3, 1, 1), stride=(2, 1, 1), bias=False))
+    tensor = spconv.SparseConvTensor(torch.tensor([[1.0], [10.0]]), torch.tensor([[0, 2, 3, 4], [0, 4, 3, 4]],
+                                                                                   dtype=torch.int32), [5, 6, 7], 1)
+    with torch.no_grad():
+        out = rulebook.run(conv, tensor, {})
+    assert out.spatial_shape == [2, 6, 7]
+    assert dict(zip(map(tuple, out.indices.tolist()), out.features[:, 0].tolist())) == {
+        (0, 1, 3, 4): 1 * 1 + 3 * 10, (0, 0, 3, 4): 3 * 1}
+
+
+def test_batch_norm_is_folded_and_relu_applied():
+    """Conv -> BatchNorm (mean 2, var + eps 4, gamma 3, beta -1: (c - 2) / 2 * 3 - 1) -> ReLU."""
+    conv = _conv(spconv.SubMConv3d(1, 1, 3, bias=False, indice_key="subm"))
+    norm = nn.BatchNorm1d(1, eps=1e-3).eval()
+    with torch.no_grad():
+        norm.running_mean.fill_(2.0)
+        norm.running_var.fill_(4.0 - 1e-3)
+        norm.weight.fill_(3.0)
+        norm.bias.fill_(-1.0)
+    block = spconv.SparseSequential(conv, norm, nn.ReLU())
+    out = _run(block, [[0, 0, 0, 0], [0, 1, 1, 1]], [1.0, 0.0], [3, 3, 3])
+    # (0,0,0) sees itself (14) and (1,1,1) at offset (+1,+1,+1), k = 26; (1,1,1) sees (0,0,0) at k = 0, weight 1
+    assert out[(0, 0, 0, 0)] == pytest.approx((14 * 1 - 2) / 2 * 3 - 1, rel=1e-6)  # 17
+    assert out[(0, 1, 1, 1)] == 0.0  # 0.5 * (1 * 1 - 2) * 3 - 1 = -2.5 -> ReLU
+
+
+def test_unsupported_layers_are_refused_by_name():
+    tensor = spconv.SparseConvTensor(torch.ones(1, 1), torch.zeros(1, 4, dtype=torch.int32), [3, 3, 3], 1)
+    with torch.no_grad(), pytest.raises(NotImplementedError, match="dilation"):
+        rulebook.run(spconv.SubMConv3d(1, 1, 3, dilation=2, bias=False), tensor, {})
+    with torch.no_grad(), pytest.raises(NotImplementedError, match="centres odd kernels"):
+        rulebook.run(spconv.SubMConv3d(1, 1, 2, bias=False), tensor, {})
+    with torch.no_grad(), pytest.raises(NotImplementedError, match="Sigmoid in a sparse block"):
+        rulebook.run(spconv.SparseSequential(nn.Sigmoid()), tensor, {})
