@@ -33,9 +33,8 @@ def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: s
 class VoxelBackBone8x(nn.Module):
     """Sparse convs 16-32-64-64 channels, 8x downsampling, then a (3,1,1) z-conv to 128 channels.
 
-    On a CPU, inference (eval mode, no grad) runs the convs with models.rulebook on all threads (in bf16 under
-    autocast); otherwise spconv runs them, in fp32, on one torch thread on a CPU (its CPU kernels race with more, see
-    spconv_cpu).
+    On a CPU, inference (eval mode, no grad) runs the convs with models.rulebook on all threads; otherwise spconv
+    runs them, on one torch thread on a CPU (its CPU kernels race with more, see spconv_cpu).
     """
 
     def __init__(self, model_cfg, input_channels: int, grid_size, **kwargs):
@@ -85,11 +84,7 @@ class VoxelBackBone8x(nn.Module):
         def step(module, tensor):
             return rulebook.run(module, tensor, rulebooks) if use_rulebook else module(tensor)
 
-        with contextlib.ExitStack() as spconv_settings:
-            if not use_rulebook:  # spconv: fp32, on one thread on a CPU
-                spconv_settings.enter_context(torch.autocast(features.device.type, enabled=False))
-                if on_cpu:
-                    spconv_settings.enter_context(single_thread())
+        with single_thread() if on_cpu and not use_rulebook else contextlib.nullcontext():
             x = spconv.SparseConvTensor(features=features,
                                         indices=batch_dict["voxel_coords"].int(),
                                         spatial_shape=self.sparse_shape, batch_size=batch_dict["batch_size"])

@@ -13,9 +13,8 @@ from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.post_processing import post_processing, size_limits
 from pcdet_memslidar.models.vfe import MeanVFE
 
-# inference precision of the convolutions (sparse 3D on a CPU, BEV backbone, head: bf16 products, fp32 sums of
-# offsets, BatchNorm and boxes), fastest on CPUs with bf16 matrix units (AMX, AVX512-BF16); spconv on a GPU, box
-# decoding and NMS stay fp32, and training is fp32
+# inference precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units
+# (AMX, AVX512-BF16) and GPUs; the sparse 3D part, box decoding and NMS stay fp32, and training is fp32
 PRECISIONS = ("fp32", "bf16")
 
 # OpenPCDet's registries: module NAME in the config -> class
@@ -78,7 +77,7 @@ class SECONDNet(nn.Module):
         self.global_step += 1
 
     def set_precision(self, precision: str) -> None:
-        """Inference precision of the convolutions (PRECISIONS); ConfigError for another."""
+        """Inference precision of the BEV backbone and head (PRECISIONS); ConfigError for another."""
         if precision not in PRECISIONS:
             raise ConfigError(f"precision {precision!r}: use one of {', '.join(PRECISIONS)}")
         self.precision = precision
@@ -86,10 +85,11 @@ class SECONDNet(nn.Module):
     def forward(self, batch_dict: dict):
         bf16 = self.precision == "bf16" and not self.training
         for module in self.module_list:
+            dense_2d = module is self.backbone_2d or module is self.dense_head
             if bf16 and module is self.backbone_2d:  # NHWC: oneDNN's fast layout for bf16 convolutions
                 batch_dict["spatial_features"] = batch_dict["spatial_features"].contiguous(
                     memory_format=torch.channels_last)
-            with torch.autocast(self.global_step.device.type, dtype=torch.bfloat16, enabled=bf16):
+            with torch.autocast(self.global_step.device.type, dtype=torch.bfloat16, enabled=bf16 and dense_2d):
                 batch_dict = module(batch_dict)
         if self.training:
             loss, tb_dict = self.dense_head.get_loss()

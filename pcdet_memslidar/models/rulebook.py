@@ -5,8 +5,8 @@ a rulebook and three dense steps:
 - the rulebook (numba, a hash table of the active cells): for each kernel offset k the pairs (input row, output
   row) with input cell = output cell x stride - padding + k (spconv's cross-correlation; a submanifold conv keeps
   the input cells as output cells and centres the kernel);
-- per offset: gather the input rows, multiply by that offset's weight (a torch matrix product, in bf16 under CPU
-  autocast), add into the output rows. An output cell takes at most one input per offset, so the adds of one offset
+- per offset: gather the input rows, multiply by that offset's weight (a torch matrix product), add into the output
+  rows. An output cell takes at most one input per offset, so the adds of one offset
   never collide: the result does not depend on the thread count, and offsets are summed in one fixed order.
 The eval-mode BatchNorm after each conv is folded into its weight and bias. Only the forward pass is here:
 training keeps spconv (its backward).
@@ -89,30 +89,12 @@ def _submanifold_sources(coords: np.ndarray, shape: np.ndarray, offsets: np.ndar
     return sources
 
 
-@kernel(inline="always")
-def _padded_length(count: int) -> int:
-    """count rounded up to at most 8 lengths per doubling (<= 12.5 % more): the matrix products of convolve then
-    take few distinct shapes, so oneDNN reuses its compiled kernels instead of compiling one per shape (~1 ms each)."""
-    step = 1
-    while 8 * step <= count:
-        step *= 2
-    return -(-count // step) * step
-
-
-@kernel
-def _pad(inputs: np.ndarray, counts: np.ndarray) -> None:
-    """Fill inputs[k, counts[k]:_padded_length(counts[k])] with row 0 (a valid row; its products are not added)."""
-    for k in range(inputs.shape[0]):
-        inputs[k, counts[k]:_padded_length(counts[k])] = 0
-
-
 @kernel
 def _strided_pairs(coords: np.ndarray, out_shape: np.ndarray, kernel_size: np.ndarray, offsets: np.ndarray,
                    stride: np.ndarray, padding: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Output cells (M, 4) and per kernel offset the pairs (counts (K,), inputs (K, >= V) padded (_pad), outputs
-    (K, V)) of a strided conv: input cell i reaches output cell o = (i + padding - k) / stride where that divides and
-    lies in the output grid (`offsets` (K, 3): k as (dz, dy, dx)). Output rows are numbered in order of first
-    appearance."""
+    """Output cells (M, 4) and per kernel offset the pairs (counts (K,), inputs (K, V), outputs (K, V)) of a strided
+    conv: input cell i reaches output cell o = (i + padding - k) / stride where that divides and lies in the output
+    grid (`offsets` (K, 3): k as (dz, dy, dx)). Output rows are numbered in order of first appearance."""
     rows = coords.shape[0]
     reach = 1  # output cells one input cell reaches at most: ceil(kernel / stride) per axis
     for axis in range(3):
@@ -125,7 +107,7 @@ def _strided_pairs(coords: np.ndarray, out_shape: np.ndarray, kernel_size: np.nd
     slot_rows = np.empty(size, np.int64)
     cells = np.empty((rows * reach, 4), np.int64)
     counts = np.zeros(offsets.shape[0], np.int64)
-    inputs = np.empty((offsets.shape[0], _padded_length(rows)), np.int64)
+    inputs = np.empty((offsets.shape[0], rows), np.int64)
     outputs = np.empty((offsets.shape[0], rows), np.int64)
     made = 0
     for row in range(rows):
@@ -149,17 +131,16 @@ def _strided_pairs(coords: np.ndarray, out_shape: np.ndarray, kernel_size: np.nd
             inputs[k, counts[k]] = row
             outputs[k, counts[k]] = slot_rows[slot]
             counts[k] += 1
-    _pad(inputs, counts)
     return cells[:made].copy(), counts, inputs, outputs
 
 
 @kernel
 def _submanifold_pairs(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per kernel offset k the pairs of a (V, K) table of source rows (-1: none): counts (K,), inputs (K, >= V)
-    padded (_pad), outputs (K, V), rows [k, :counts[k]] valid, in output row order."""
+    """Per kernel offset k the pairs of a (V, K) table of source rows (-1: none): counts (K,), inputs (K, V),
+    outputs (K, V), rows [k, :counts[k]] valid, in output row order."""
     rows, offsets = sources.shape
     counts = np.zeros(offsets, np.int64)
-    inputs = np.empty((offsets, _padded_length(rows)), np.int64)
+    inputs = np.empty((offsets, rows), np.int64)
     outputs = np.empty((offsets, rows), np.int64)
     for row in range(rows):
         for k in range(offsets):
@@ -167,7 +148,6 @@ def _submanifold_pairs(sources: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
                 inputs[k, counts[k]] = sources[row, k]
                 outputs[k, counts[k]] = row
                 counts[k] += 1
-    _pad(inputs, counts)
     return counts, inputs, outputs
 
 
@@ -181,8 +161,8 @@ def _scatter_add(out: np.ndarray, rows: np.ndarray, values: np.ndarray) -> None:
 
 class Rulebook:
     """The pairs of one sparse conv: output cells `coords` (M, 4) int64 [b, z, y, x] in a grid of `shape` (z, y,
-    x), and `pairs`: per kernel offset k with any, (k, input rows (padded), output rows), torch int64; input row
-    inputs[p] adds into output row outputs[p] for p < len(outputs)."""
+    x), and `pairs`: per kernel offset k with any, (k, input rows, output rows), torch int64: input row inputs[p]
+    adds into output row outputs[p]."""
 
     def __init__(self, coords: np.ndarray, shape, conv: spconv.conv.SparseConvolution):
         kernel_size, stride, padding = (np.asarray(v, np.int64) for v in (conv.kernel_size, conv.stride,
@@ -206,7 +186,7 @@ class Rulebook:
             self.coords, counts, inputs, outputs = _strided_pairs(coords, self.shape, kernel_size, offsets, stride,
                                                                   padding)
         inputs, outputs = torch.from_numpy(inputs), torch.from_numpy(outputs)
-        self.pairs = [(k, inputs[k, :_padded_length(n)], outputs[k, :n]) for k, n in enumerate(counts.tolist()) if n]
+        self.pairs = [(k, inputs[k, :n], outputs[k, :n]) for k, n in enumerate(counts.tolist()) if n]
 
 
 def folded(conv: spconv.conv.SparseConvolution, norm: nn.BatchNorm1d | None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -221,14 +201,11 @@ def folded(conv: spconv.conv.SparseConvolution, norm: nn.BatchNorm1d | None) -> 
     return (weight * scale).contiguous(), (bias - norm.running_mean) * scale + norm.bias.detach()
 
 
-def convolve(features: torch.Tensor, rules: Rulebook, weight: torch.Tensor, bias: torch.Tensor,
-             dtype: torch.dtype = torch.float32) -> torch.Tensor:
-    """(V, C_in) features of the input rows -> (M, C_out) fp32 of the output rows: the sum over offsets in order
-    k = 0..K-1 of fp32 products, or of bf16 products (fp32 accumulation inside each) when dtype is bfloat16."""
+def convolve(features: torch.Tensor, rules: Rulebook, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """(V, C_in) features of the input rows -> (M, C_out) of the output rows: sum over offsets in order k = 0..K-1."""
     out = bias.expand(len(rules.coords), -1).clone()
-    features, weight = features.to(dtype), weight.to(dtype)
     for k, inputs, outputs in rules.pairs:
-        products = (features.index_select(0, inputs) @ weight[k]).float()  # padded rows: left out of the sum
+        products = features.index_select(0, inputs) @ weight[k]
         _scatter_add(out.numpy(), outputs.numpy(), products.numpy())
     return out
 
@@ -243,10 +220,8 @@ def _layers(module: nn.Module) -> list[nn.Module]:
 def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spconv.SparseConvTensor:
     """Forward of a SparseSequential of sparse convs, eval-mode BatchNorm1d and ReLU on the CPU (the tensor's cells
     distinct, as spconv requires; no grad), with rulebooks
-    shared through `cache` by indice_key as spconv shares its indices. numba runs on as many threads as torch.
-    Under CPU autocast to bfloat16 the products are bf16 (convolve)."""
+    shared through `cache` by indice_key as spconv shares its indices. numba runs on as many threads as torch."""
     numba.set_num_threads(min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-    dtype = torch.get_autocast_dtype("cpu") if torch.is_autocast_enabled("cpu") else torch.float32
     features, coords, shape = tensor.features, tensor.indices.numpy().astype(np.int64), tensor.spatial_shape
     layers = _layers(module)
     for position, layer in enumerate(layers):
@@ -258,7 +233,7 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spco
                 rules = cache[key] = Rulebook(coords, shape, layer)
             following = layers[position + 1] if position + 1 < len(layers) else None
             norm = following if isinstance(following, nn.BatchNorm1d) else None
-            features = convolve(features, rules, *folded(layer, norm), dtype)
+            features = convolve(features, rules, *folded(layer, norm))
             coords, shape = rules.coords, rules.shape.tolist()
         elif isinstance(layer, nn.BatchNorm1d) and isinstance(previous, spconv.conv.SparseConvolution):
             continue  # folded into the conv before it

@@ -132,12 +132,6 @@ def test_inference_runs_the_rulebook_and_equals_spconv_and_dense_conv3d_at_two_t
         dense = _dense_backbone(backbone, features[keep], coords[keep], shape)
         assert (ours[0].dense()[b] - dense[0]).abs().max().item() <= 1e-4 * scale
     assert torch.get_num_threads() == 2
-    # under CPU autocast (bf16 inference) the products are bf16: within 2 % of the largest value (0.22 % measured)
-    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
-        bf16 = backbone(dict(batch))["encoded_spconv_tensor"]
-    assert bf16.features.dtype == torch.float32
-    error = (bf16.dense() - reference).abs().max().item()
-    assert 0 < error <= 0.02 * scale
 
 
 def test_patch_is_idempotent_and_single_thread_restores():
