@@ -221,7 +221,9 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spco
     """Forward of a SparseSequential of sparse convs, eval-mode BatchNorm1d and ReLU on the CPU (the tensor's cells
     distinct, as spconv requires; no grad), with rulebooks
     shared through `cache` by indice_key as spconv shares its indices. numba runs on as many threads as torch."""
-    numba.set_num_threads(min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    threads = torch.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # starts numba's OpenMP pool at the first
+    torch.set_num_threads(threads)  # call, which sets OpenMP's thread count: torch's too (libgomp is shared)
     features, coords, shape = tensor.features, tensor.indices.numpy().astype(np.int64), tensor.spatial_shape
     layers = _layers(module)
     for position, layer in enumerate(layers):

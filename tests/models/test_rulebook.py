@@ -78,6 +78,18 @@ def test_batch_norm_is_folded_and_relu_applied():
     assert out[(0, 1, 1, 1)] == 0.0  # 0.5 * (1 * 1 - 2) * 3 - 1 = -2.5 -> ReLU
 
 
+def test_torch_keeps_its_thread_count():
+    """numba's parallel kernels must not change torch's threads: starting numba's OpenMP pool set a 1-thread process
+    to 2 threads (5 training processes on 2 cores then ran 6x slower after their first validation)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        _run(_conv(spconv.SubMConv3d(1, 1, 3, bias=False)), [[0, 0, 0, 0], [0, 0, 0, 1]], [1.0, 2.0], [2, 2, 2])
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_unsupported_layers_are_refused_by_name():
     tensor = spconv.SparseConvTensor(torch.ones(1, 1), torch.zeros(1, 4, dtype=torch.int32), [3, 3, 3], 1)
     with torch.no_grad(), pytest.raises(NotImplementedError, match="dilation"):
