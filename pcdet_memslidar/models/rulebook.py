@@ -168,12 +168,12 @@ class Rulebook:
         kernel_size, stride, padding = (np.asarray(v, np.int64) for v in (conv.kernel_size, conv.stride,
                                                                             conv.padding))
         if list(conv.dilation) != [1, 1, 1] or conv.transposed or conv.inverse or conv.groups != 1:
-            raise NotImplementedError(f"{type(conv).__name__} with dilation {conv.dilation}, transposed "
+            raise ValueError(f"{type(conv).__name__} with dilation {conv.dilation}, transposed "
                                       f"{conv.transposed}, inverse {conv.inverse}, groups {conv.groups}: the CPU "
                                       f"rulebook takes dilation 1, one group, forward convs; run it with spconv")
         self.subm = bool(conv.subm)
         if self.subm and not (kernel_size % 2).all():
-            raise NotImplementedError(f"SubMConv3d with kernel {conv.kernel_size}: the CPU rulebook centres odd "
+            raise ValueError(f"SubMConv3d with kernel {conv.kernel_size}: the CPU rulebook centres odd "
                                       f"kernels; run it with spconv")
         shape = np.asarray(shape, np.int64)
         self.shape = shape if self.subm else (shape + 2 * padding - kernel_size) // stride + 1
@@ -242,6 +242,6 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spco
         elif isinstance(layer, nn.ReLU):
             features = features.clamp_min_(0)
         else:
-            raise NotImplementedError(f"{type(layer).__name__} in a sparse block: the CPU rulebook takes sparse "
+            raise ValueError(f"{type(layer).__name__} in a sparse block: the CPU rulebook takes sparse "
                                       f"convs, each optionally followed by BatchNorm1d, and ReLU")
     return spconv.SparseConvTensor(features, torch.from_numpy(coords).int(), list(shape), tensor.batch_size)
