@@ -14,7 +14,7 @@ from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 
 # name -> (module of pcdet_memslidar.commands, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
-    "simulate": ("simulate", "simulate a domain (sim | real | industrial) as a KITTI-layout dataset"),
+    "simulate": ("simulate", "simulate a domain (sim | real | industrial) or a site file as a KITTI-layout dataset"),
     "import": ("import_recordings", "real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> dataset"),
     "export-custom": ("export_custom", "a KITTI-layout dataset -> OpenPCDet's custom layout (points/*.npy)"),
     "create-infos": ("create_infos", "info files and gt database of every source a config reads"),
@@ -23,6 +23,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("eval", "AP of prediction label folders (3D/BEV IoU 0.5, R40/R11, distance bins)"),
     "reproduce": ("reproduce", "the paper's M1-M4 end to end: data, four models, Table 3, figures, report"),
     "sweep": ("sweep", "the paper's open questions: AP against the sim/real ratio or the real-annotation budget"),
+    "site": ("site", "your own site without annotating: check a site file's floor; train a detector on its empty "
+                     "recording with simulated people composited in"),
     "detect": ("detect", "a trained detector on recordings: detections, tracks and zone events (no raw points)"),
 }
 

@@ -66,20 +66,20 @@ OPTIONAL_KEYS = (
 )
 
 
-class _Loader(yaml.SafeLoader):
+class YamlLoader(yaml.SafeLoader):
     """YAML safe loader that also reads `1e-4` (no dot) as a float, as a reader of a config would expect."""
 
 
-_Loader.add_implicit_resolver(
+YamlLoader.add_implicit_resolver(
     "tag:yaml.org,2002:float",
     re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
     list("-+0123456789."),
 )
 
 
-def _parse_yaml(text: str, source: str):
+def parse_yaml(text: str, source: str):
     try:
-        return yaml.load(text, Loader=_Loader)
+        return yaml.load(text, Loader=YamlLoader)
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
@@ -119,7 +119,7 @@ def _line_of(path: Path, needle: str) -> int | None:
 
 def _key_line(path: Path, keys: tuple[str, ...]) -> int | None:
     """1-based line of the key at `keys` (a path of mapping keys from the top of the YAML file `path`), if found."""
-    node = yaml.compose(path.read_text(encoding="utf-8"), Loader=_Loader)
+    node = yaml.compose(path.read_text(encoding="utf-8"), Loader=YamlLoader)
     line = None
     for key in keys:
         if not isinstance(node, yaml.MappingNode):
@@ -132,7 +132,7 @@ def _key_line(path: Path, keys: tuple[str, ...]) -> int | None:
 
 
 def _load_yaml_file(path: Path) -> dict:
-    mapping = _parse_yaml(path.read_text(encoding="utf-8"), str(path))
+    mapping = parse_yaml(path.read_text(encoding="utf-8"), str(path))
     if mapping is None:
         return {}
     if not isinstance(mapping, dict):
@@ -272,7 +272,7 @@ def _close(key: str, options) -> str:
 
 def _convert(text: str, current, key: str):
     """The YAML value of `text`, converted to the type of the value it replaces."""
-    value = _parse_yaml(text, f"--set {key}")
+    value = parse_yaml(text, f"--set {key}")
     if current is None or value is None or isinstance(current, str):
         return text if isinstance(current, str) else value
     if isinstance(current, bool) or isinstance(value, bool):
@@ -285,7 +285,7 @@ def _convert(text: str, current, key: str):
         raise ConfigError(f"--set {key} {text}: expected {type(current).__name__}, got {text!r}")
     if isinstance(current, list):
         if isinstance(value, str):  # OpenPCDet's comma form: --set A.LIST 1,2,3
-            value = [_parse_yaml(item, f"--set {key}") for item in value.split(",")]
+            value = [parse_yaml(item, f"--set {key}") for item in value.split(",")]
         if not isinstance(value, list):
             value = [value]
         return value
@@ -294,7 +294,7 @@ def _convert(text: str, current, key: str):
             pairs = [item.split(":", 1) for item in value.split(",")]
             if any(len(pair) != 2 for pair in pairs):
                 raise ConfigError(f"--set {key} {text}: expected a mapping, e.g. '{{KEY: value}}' or KEY:value,...")
-            value = {name.strip(): _parse_yaml(item, f"--set {key}") for name, item in pairs}
+            value = {name.strip(): parse_yaml(item, f"--set {key}") for name, item in pairs}
         if not isinstance(value, dict):
             raise ConfigError(f"--set {key} {text}: expected a mapping")
         known = _known_keys(current, tuple(key.split(".")))

@@ -88,7 +88,7 @@ def check_second_grid(model_cfg, point_cloud_range, voxel_size) -> np.ndarray:
     voxel_size = config_numbers(voxel_size, 3, VOXEL_KEY, VOXEL_FORMAT)
     layer_strides = list(model_cfg.BACKBONE_2D.get("LAYER_STRIDES", [1]))
     head_stride = _head_stride(model_cfg)
-    multiple = math.lcm(SPARSE_STRIDE * int(np.prod(layer_strides)), head_stride)
+    multiple = xy_cell_multiple(model_cfg)
     num_bev_features = model_cfg.MAP_TO_BEV.NUM_BEV_FEATURES
     z_cells = _z_cells(num_bev_features)
     try:
@@ -105,6 +105,26 @@ def check_second_grid(model_cfg, point_cloud_range, voxel_size) -> np.ndarray:
         f"the depth VoxelBackBone8x leaves) and x, y multiples of {multiple} (stride {SPARSE_STRIDE} x "
         f"BACKBONE_2D.LAYER_STRIDES {layer_strides}, and the head's stride {head_stride}). "
         f"{_fitting_sizes(point_cloud_range, voxel_size, multiple, z_cells)}")
+
+
+def xy_cell_multiple(model_cfg) -> int:
+    """The number that SECOND as `model_cfg` (its MODEL section) needs the x and y cell counts to be multiples of:
+    stride 8 x BACKBONE_2D.LAYER_STRIDES, and the head's stride."""
+    layer_strides = list(model_cfg.BACKBONE_2D.get("LAYER_STRIDES", [1]))
+    return math.lcm(SPARSE_STRIDE * int(np.prod(layer_strides)), _head_stride(model_cfg))
+
+
+def fitted_range(extent_xy, z_range, voxel_xy: float, multiple: int) -> list[float]:
+    """POINT_CLOUD_RANGE [x0, y0, z0, x1, y1, z1] [m] of the smallest grid that covers extent_xy (x0, y0, x1, y1)
+    [m] with x and y spans of whole multiples of `multiple` voxels of voxel_xy [m], centred on the extent; z_range
+    (z0, z1) as given (a site's grid follows its floor and field of view, by the rule of check_second_grid)."""
+    bounds = []
+    for low, high in ((extent_xy[0], extent_xy[2]), (extent_xy[1], extent_xy[3])):
+        cells = multiple * max(1, math.ceil((high - low) / voxel_xy / multiple - 1e-9))
+        start = round(((low + high) / 2 - cells * voxel_xy / 2) / voxel_xy) * voxel_xy
+        bounds.append((round(start, 6), round(start + cells * voxel_xy, 6)))
+    (x0, x1), (y0, y1) = bounds
+    return [x0, y0, float(z_range[0]), x1, y1, float(z_range[1])]
 
 
 def check_config_grid(cfg, where: str | None = None) -> np.ndarray | None:

@@ -57,7 +57,7 @@ from pcdet_memslidar.runtime.eval_loop import prediction_folder
 from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.pretrain import split_stages
 from pcdet_memslidar.runtime.train import train
-from pcdet_memslidar.sim.domains import get_domain
+from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
 from pcdet_memslidar.utils.atomic import refuse_overlap, write_text
 from pcdet_memslidar.utils.cores import available_cores

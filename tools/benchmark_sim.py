@@ -34,12 +34,12 @@ import numpy as np
 
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.sim.bodies import LODS, load_body_bank
-from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.frame import frame_rng, get_caster, simulate_frame
 from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import sample_people
 from pcdet_memslidar.sim.scenes import get_scene
+from pcdet_memslidar.sim.site import BUNDLED_SITES, get_domain
 from pcdet_memslidar.sim.writer import domain_settings, simulate_dataset, write_simulated_frame
 from pcdet_memslidar.utils.open3d import import_open3d
 
@@ -205,7 +205,7 @@ def main() -> None:
     print(f"{'domain':34s} {'people':>6s} {'rays':>7s} {'frames/s':>9s} {'Mrays/s':>8s} {'frames/s ' + workers:>19s} "
           f"{'start-up s':>10s}   whole/pure: {'one core':>8s} {'one process':>11s} {workers:>11s}")
     results = {}
-    for preset in [target] + [get_domain(name) for name in sorted(DOMAINS)]:
+    for preset in [target] + [get_domain(name) for name in list(BUNDLED_SITES)]:
         r = results[preset.name] = speed(preset, args.frames, args.workers, args.where)
         print(f"{preset.name:34s} {r['people_per_frame']:6.1f} {r['rays']:7.0f} {r['fps']:9.1f} "
               f"{r['rays_per_s'] / 1e6:8.2f} {r['parallel_fps']:19.1f} {r['start_up_s']:10.1f}   {'':11s} "

@@ -37,7 +37,7 @@ from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.detect import DETECTIONS_FILE, DetectOptions, FrameVoxeliser, detect
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
-from pcdet_memslidar.sim.domains import get_domain
+from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_sequence_dataset
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.compute import floor_ms, forward_flops, gemm_flops_per_s

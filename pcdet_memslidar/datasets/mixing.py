@@ -20,8 +20,9 @@ import torch
 
 from ..errors import ConfigError, DataFormatError
 from ..io.layout import stable_split
+from ..sim.site import BUNDLED_SITES
 
-BUNDLED_DOMAINS = ("sim", "real", "industrial")
+BUNDLED_DOMAINS = BUNDLED_SITES
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from matplotlib.ticker import MaxNLocator
 
 from pcdet_memslidar.geometry.boxes import boxes_to_corners_3d
 from pcdet_memslidar.geometry.iou import boxes_iou3d, boxes_iou_bev
+from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.utils.atomic import atomic_path
 
 GT_COLOR, PRED_COLOR = "tab:blue", "tab:green"
@@ -171,6 +172,31 @@ def plot_frame(path: str | Path, points: np.ndarray, gt_boxes: np.ndarray, title
                                                                           if len(predictions) else ""))
     side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=bev.get_xlim(),
              ylim=(SIDE_Z[0], max(SIDE_Z[1], points[:, 2].max(initial=0))))
+    return _save(figure, path)
+
+
+def plot_frames(path: str | Path, panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
+                point_cloud_range) -> Path:
+    """Frames side by side, each a bird's-eye view over the detector's range [x0, y0, z0, x1, y1, z1] (top) and a
+    side view (bottom): panels [(title, points (N, 3+), ground-truth boxes (M, 7) blue, predicted boxes (K, 7)
+    green)]."""
+    x0, y0, _, x1, y1, _ = np.asarray(point_cloud_range, dtype=np.float64)
+    figure = Figure(figsize=(6.5 * len(panels), 8.5), layout="constrained")
+    grid = figure.add_gridspec(2, len(panels), height_ratios=[3, 1])
+    for column, (title, points, gt_boxes, predictions) in enumerate(panels):
+        points = np.asarray(points)
+        inside = (points[:, 0] >= x0) & (points[:, 0] <= x1) & (points[:, 1] >= y0) & (points[:, 1] <= y1)
+        ground = points[:, 2] < GROUND_Z
+        bev, side = figure.add_subplot(grid[0, column]), figure.add_subplot(grid[1, column])
+        for mask, color in ((inside & ground, GROUND_COLOR), (inside & ~ground, POINT_COLOR)):
+            bev.scatter(points[mask, 0], points[mask, 1], s=0.4, c=color, linewidths=0)
+        side.scatter(points[inside, 0], points[inside, 2], s=0.4, c=POINT_COLOR, linewidths=0)
+        for boxes, color in ((gt_boxes, GT_COLOR), (predictions, PRED_COLOR)):
+            draw_boxes_bev(bev, np.asarray(boxes, dtype=np.float64).reshape(-1, 7), color)
+            draw_boxes_side(side, np.asarray(boxes, dtype=np.float64).reshape(-1, 7), color)
+        bev.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal", xlim=(x0, x1), ylim=(y0, y1))
+        bev.set_title(title, fontsize=9)
+        side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=(x0, x1), ylim=SIDE_Z)
     return _save(figure, path)
 
 
@@ -336,6 +362,29 @@ def plot_tracks_frame(path: str | Path, boxes: np.ndarray, track_ids: list[int |
            title=title + (f"\n{happened}" if happened else ""))
     ax.title.set_fontsize(9)
     ax.grid(alpha=0.3)
+    return _save(figure, path)
+
+
+def plot_ground_check(path: str | Path, points: np.ndarray, mount: Mount, title: str = "",
+                      floor_band_m: float = 0.1) -> Path:
+    """The evidence for a mount: (N, 3+) points in the SENSOR frame [m], normalised with `mount`, seen from the
+    side (x, z; the fitted floor z = 0 drawn as a line) and from above (x, y); points within floor_band_m of z = 0
+    in orange. If the mount is right, the orange points are the floor, flat along x."""
+    ground = mount.sensor_to_ground(np.asarray(points)[:, :3])
+    floor = np.abs(ground[:, 2]) < floor_band_m
+    x_range, y_range = np.percentile(ground[:, 0], [1, 99]), np.percentile(ground[:, 1], [1, 99])
+    figure = Figure(figsize=(9, 10), layout="constrained")
+    side, top = figure.subplots(2, 1, height_ratios=[1, 2])
+    for ax, column in ((side, 2), (top, 1)):
+        for mask, color, size in ((~floor, POINT_COLOR, 0.3), (floor, "tab:orange", 1.0)):
+            ax.scatter(ground[mask, 0], ground[mask, column], s=size, c=color, linewidths=0)
+    side.axhline(0.0, color="tab:blue", linewidth=1, label="fitted floor z = 0")
+    side.legend(fontsize=8, loc="upper left")
+    side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=x_range, ylim=(-1.0, 3.0))
+    top.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal", xlim=x_range, ylim=y_range)
+    evidence = (f"height {mount.height:.2f} m, tilt {mount.tilt_deg:.2f} deg, roll {mount.roll_deg:.2f} deg; orange: "
+                f"{floor.mean():.1%} of the points within {floor_band_m} m of z = 0")
+    side.set_title(f"{title}\n{evidence}" if title else evidence, fontsize=9)
     return _save(figure, path)
 
 

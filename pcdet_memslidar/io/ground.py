@@ -1,8 +1,10 @@
 """Normalisation to the ground frame ("recalculated to the origin, tilt and height removed").
 
-The mount comes from the user (height, tilt) or from the ground plane: RANSAC (Open3D's segment_plane) finds
-planes, the first one that faces the sensor from below is refined by least squares on its inliers, and its normal
-and distance give height, tilt and roll (yaw is not observable from the ground and stays 0).
+The mount comes from the user (height, tilt) or from the ground plane, the lowest large level plane: desk tops,
+shelves and machines lie above the floor, and a static sensor may see only a little of the floor behind them.
+RANSAC finds the largest level plane, then the largest one below it, and so on; the lowest is refined by least
+squares on its inliers, and its normal and distance give height, tilt and roll (yaw is not observable from the
+ground and stays 0).
 """
 from __future__ import annotations
 
@@ -11,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcdet_memslidar.geometry.mount import Mount
-from pcdet_memslidar.utils.open3d import import_open3d
 
 
 @dataclass(frozen=True)
@@ -54,27 +55,58 @@ def mount_from_plane(normal: np.ndarray, distance: float) -> Mount:
 
 
 def estimate_ground(points: np.ndarray, distance_threshold: float = 0.05, max_tilt_deg: float = 70.0,
-                    max_planes: int = 4, iterations: int = 2000, seed: int = 0) -> GroundEstimate:
-    """Estimate the mount from (N, >=3) points in the sensor frame [m].
+                    max_planes: int = 10, iterations: int = 5000, seed: int = 0, min_inliers: int = 100,
+                    min_share: float = 0.005, max_skew_deg: float = 10.0) -> GroundEstimate:
+    """Estimate the mount from (N, >=3) points in the sensor frame [m]: the ground is the lowest large level plane.
 
-    RANSAC planes are tried from the largest down; walls and ceilings are skipped because the ground is the plane
-    below the sensor whose normal is within `max_tilt_deg` of the sensor's z axis. Raises ValueError if none is.
+    A plane counts if its normal is within `max_tilt_deg` [deg] of the sensor's z axis, the sensor lies more than
+    `distance_threshold` [m] above it, and at least `min_inliers` points and `min_share` (a fraction) of all points
+    lie within `distance_threshold` of it. RANSAC (`iterations` random planes, seeded) finds the counting plane with
+    the most inliers, then the one with the most among the points below it (parallel within `max_skew_deg` [deg]),
+    up to `max_planes` planes; the lowest is refined by least squares. Raises ValueError if no plane counts.
     """
-    o3d = import_open3d()
-    o3d.utility.random.seed(seed)
-    remaining = np.asarray(points, dtype=np.float64)[:, :3]
+    xyz = np.asarray(points, dtype=np.float64)[:, :3]
+    rng = np.random.default_rng(seed)
+    need = max(min_inliers, int(np.ceil(min_share * len(xyz))))
+    lowest, remaining = None, xyz  # lowest: (plane (4,), its inliers (K, 3))
     for _ in range(max_planes):
-        if len(remaining) < 100:
+        if len(remaining) < need:
             break
-        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(remaining))
-        (a, b, c, d), inliers = cloud.segment_plane(distance_threshold, 3, iterations)
-        plane = np.array([a, b, c, d]) / np.linalg.norm([a, b, c])
-        plane = plane if plane[3] > 0 else -plane  # orient the normal towards the sensor origin
-        if plane[2] >= np.cos(np.radians(max_tilt_deg)) and len(inliers) >= 100:
-            return _refine(remaining[inliers], distance_threshold)
-        remaining = np.delete(remaining, inliers, axis=0)
-    raise ValueError(f"no ground plane found: none of the {max_planes} largest planes lies below the sensor within "
-                     f"{max_tilt_deg} deg of level; pass --mount HEIGHT,TILT instead")
+        plane, inliers = _level_plane(remaining, None if lowest is None else lowest[0], distance_threshold,
+                                      max_tilt_deg, max_skew_deg, iterations, rng)
+        if plane is None or inliers.sum() < need:
+            break
+        lowest = plane, remaining[inliers]
+        remaining = remaining[remaining @ plane[:3] + plane[3] < -distance_threshold]
+    if lowest is None:
+        raise ValueError(f"no ground plane found: no plane below the sensor within {max_tilt_deg} deg of level holds "
+                         f"{need} points; pass --mount HEIGHT,TILT instead")
+    return _refine(lowest[1], distance_threshold)
+
+
+def _level_plane(points: np.ndarray, above: np.ndarray | None, distance_threshold: float, max_tilt_deg: float,
+                 max_skew_deg: float, iterations: int, rng: np.random.Generator
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """RANSAC: of `iterations` planes through 3 random points (N, 3) [m], the one with the most inliers (N,) bool
+    that is level (normal within max_tilt_deg of z), lies more than distance_threshold below the sensor and, if
+    `above` (4,) is given, lies lower than it within max_skew_deg of parallel. Planes (4,) are a, b, c, d with
+    unit normal towards the sensor (d > 0 [m]); (None, None) if no random plane qualifies."""
+    corners = points[rng.integers(0, len(points), (iterations, 3))]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    planes = np.column_stack([normals, -(normals * corners[:, 0]).sum(axis=1)])[length > 0] / length[length > 0, None]
+    planes *= np.where(planes[:, 3:] < 0, -1.0, 1.0)  # normal towards the sensor origin
+    level = (planes[:, 2] >= np.cos(np.radians(max_tilt_deg))) & (planes[:, 3] > distance_threshold)
+    if above is not None:
+        level &= (planes[:, :3] @ above[:3] >= np.cos(np.radians(max_skew_deg))) & (planes[:, 3] > above[3])
+    planes = planes[level]
+    if not len(planes):
+        return None, None
+    homogeneous = np.column_stack([points, np.ones(len(points))])
+    counts = np.concatenate([(np.abs(homogeneous @ chunk.T) <= distance_threshold).sum(axis=0)
+                             for chunk in np.array_split(planes, -(-len(planes) // 32))])
+    best = planes[counts.argmax()]
+    return best, np.abs(homogeneous @ best) <= distance_threshold
 
 
 def _refine(inliers: np.ndarray, distance_threshold: float) -> GroundEstimate:

@@ -150,10 +150,11 @@ def _union(boxes: np.ndarray, axis: int) -> np.ndarray:
 class Caster:
     """Casts one scan pattern from one viewpoint; build once, then call cast_frame per frame.
 
-    directions (P, 3) unit pulse directions in the sensor frame, time_offset (P,) [s]; beam_divergence_rad > 0
-    adds sub-rays; threads: Open3D threads per cast (0 = all cores)."""
+    scene: the static world, or (P,) ranges [m] of a background recording's returns along the pulses (inf: none),
+    which people hide where they are nearer; directions (P, 3) unit pulse directions in the sensor frame,
+    time_offset (P,) [s]; beam_divergence_rad > 0 adds sub-rays; threads: Open3D threads per cast (0 = all cores)."""
 
-    def __init__(self, scene: Scene, mount: Mount, directions: np.ndarray, time_offset: np.ndarray,
+    def __init__(self, scene: Scene | np.ndarray, mount: Mount, directions: np.ndarray, time_offset: np.ndarray,
                  frame_period_s: float, bank: BodyBank, lod: str = "fine", beam_divergence_rad: float = 0.0,
                  threads: int = 0):
         o3d = import_open3d()
@@ -170,19 +171,12 @@ class Caster:
         self.time_offset = np.tile(np.asarray(time_offset, dtype=np.float64), len(rays))
         self.has_subrays = len(rays) > 1
 
-        vertices, triangles, self.static_reflectivity = scene.triangles()
-        self.static_scene = o3d.t.geometry.RaycastingScene()
-        self.static_scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
-        t_hit, _, primitive, normal = _cast(
-            self.static_scene, np.column_stack([np.broadcast_to(self.origin, self.directions.shape), self.directions]),
-            threads)
-        hit = np.isfinite(t_hit)
-        self.static_range = np.where(hit, t_hit.astype(np.float64), np.inf)  # (R,)
-        hit, normal, primitive = hit[:self.pulses], normal[:self.pulses], primitive[:self.pulses]
-        self.static_cos = np.where(hit, np.abs(np.einsum("ij,ij->i", normal, self.pulse_directions)), 0.0)  # (P,)
-        self.static_ray_reflectivity = np.where(hit, self.static_reflectivity[np.where(hit, primitive, 0)], 0.0)
-        self.static_edge_range = (self._edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
-                                  else None)
+        if isinstance(scene, Scene):
+            self._cast_static(scene, o3d, threads)
+        else:  # a background recording: each pulse's real return; its footprint sees the same surface
+            self.static_range = np.tile(np.asarray(scene, dtype=np.float64), len(rays))  # (R,)
+            self.static_cos = self.static_ray_reflectivity = np.zeros(self.pulses)
+            self.static_edge_range = np.full(self.pulses, np.nan) if self.has_subrays else None
         # angular index: rays sorted by time slice, azimuth bin, then elevation;
         # key = slice * AZIMUTH_BINS + azimuth bin + 0.5 + elevation / 4
         ray_slice = np.minimum(np.floor(self.time_offset / SLICE_S), np.ceil(frame_period_s / SLICE_S) - 1)
@@ -194,6 +188,22 @@ class Caster:
         self.angular_order = np.argsort(key, kind="stable")
         self.angular_key = key[self.angular_order]
         self.cell_start = np.searchsorted(self.angular_key, np.arange(self.slice_times.shape[1] * AZIMUTH_BINS + 1))
+
+    def _cast_static(self, scene: Scene, o3d, threads: int) -> None:
+        """Cast every ray against the static world once: range (R,), cosine, reflectivity and edge range (P,)."""
+        vertices, triangles, reflectivity = scene.triangles()
+        static_scene = o3d.t.geometry.RaycastingScene()
+        static_scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
+        t_hit, _, primitive, normal = _cast(
+            static_scene, np.column_stack([np.broadcast_to(self.origin, self.directions.shape), self.directions]),
+            threads)
+        hit = np.isfinite(t_hit)
+        self.static_range = np.where(hit, t_hit.astype(np.float64), np.inf)  # (R,)
+        hit, normal, primitive = hit[:self.pulses], normal[:self.pulses], primitive[:self.pulses]
+        self.static_cos = np.where(hit, np.abs(np.einsum("ij,ij->i", normal, self.pulse_directions)), 0.0)  # (P,)
+        self.static_ray_reflectivity = np.where(hit, reflectivity[np.where(hit, primitive, 0)], 0.0)
+        self.static_edge_range = (self._edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
+                                  else None)
 
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
                    phase_steps: int | None = None) -> FrameHits:

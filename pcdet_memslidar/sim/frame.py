@@ -6,6 +6,7 @@ viewpoint and one set of people whose walks span all its frames, from one genera
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
 import time
@@ -18,13 +19,13 @@ import pcdet_memslidar
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
 from pcdet_memslidar.sim.caster import Caster
-from pcdet_memslidar.sim.domains import DomainPreset
 from pcdet_memslidar.sim.labels import label_people
 from pcdet_memslidar.sim.motion import Trajectory
-from pcdet_memslidar.sim.pattern import get_pattern
+from pcdet_memslidar.sim.pattern import ScanPattern, get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
-from pcdet_memslidar.sim.scenes import get_scene
+from pcdet_memslidar.sim.scenes import SceneSpec, get_scene, scene_name
 from pcdet_memslidar.sim.sensor import SensorModel, get_sensor
+from pcdet_memslidar.sim.site import Site
 from pcdet_memslidar.utils.compiled import kernel
 
 
@@ -50,19 +51,19 @@ def frame_rng(seed: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(entropy=seed, spawn_key=(index,)))
 
 
-def get_caster(scene_name: str, mount: Mount, pattern_name: str, sensor_name: str, lod: str,
+def get_caster(scene: str | SceneSpec, mount: Mount, pattern: str | ScanPattern, sensor_name: str, lod: str,
                threads: int = 0) -> Caster:
     """The caster of one viewpoint, built once per process (the static world is cast here), by one thread."""
     with _CASTER_LOCK:
-        return _cached_caster(scene_name, mount, pattern_name, sensor_name, lod, threads)
+        return _cached_caster(scene, mount, pattern, sensor_name, lod, threads)
 
 
 @functools.lru_cache(maxsize=16)  # called with all arguments positional: one cache entry per viewpoint
-def _cached_caster(scene_name: str, mount: Mount, pattern_name: str, sensor_name: str, lod: str,
+def _cached_caster(scene: str | SceneSpec, mount: Mount, pattern: str | ScanPattern, sensor_name: str, lod: str,
                    threads: int) -> Caster:
-    pattern = get_pattern(pattern_name)
+    pattern = get_pattern(pattern)
     directions, time_offset, _ = pattern.pulses()
-    return Caster(get_scene(scene_name), mount, directions, time_offset, pattern.frame_period_s, load_body_bank(),
+    return Caster(get_scene(scene), mount, directions, time_offset, pattern.frame_period_s, load_body_bank(),
                   lod=lod, beam_divergence_rad=get_sensor(sensor_name).beam_divergence_rad, threads=threads)
 
 
@@ -83,7 +84,8 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
     start = time.perf_counter()
     pulse, measured, intensity = sensor.returns(hits.range, hits.cos_incidence, hits.reflectivity, rng,
                                                 hits.edge_range)
-    points, time_offset = _points(caster.origin, caster.directions, caster.time_offset, pulse, measured, intensity)
+    points, time_offset = points_of_returns(caster.origin, caster.directions, caster.time_offset, pulse, measured,
+                                            intensity)
     seconds["sensor"] = time.perf_counter() - start
     # labels from the simulator state
     start = time.perf_counter()
@@ -96,7 +98,7 @@ def render(caster: Caster, people: list[Person], sensor: SensorModel, rng: np.ra
 
 
 @kernel
-def _points(origin, directions, pulse_time, pulse, range_m, intensity):
+def points_of_returns(origin, directions, pulse_time, pulse, range_m, intensity):
     """points (n, 4) float32 [origin + range_m x direction, intensity] and time offsets (n,) float32 [s] of the
     returns of pulses pulse (n,) (origin (3,), directions (P, 3), pulse_time (P,) [s], range_m (n,) [m],
     intensity (n,))."""
@@ -110,13 +112,13 @@ def _points(origin, directions, pulse_time, pulse, range_m, intensity):
     return points, time_offset
 
 
-def simulate_frame(preset: DomainPreset, seed: int, index: int, threads: int = 0,
+def simulate_frame(preset: Site, seed: int, index: int, threads: int = 0,
                    bank: BodyBank | None = None) -> Frame:
     """Frame `index` of domain `preset` with dataset seed `seed`."""
     return next(_frames(preset, frame_rng(seed, index), 1, dict(frame_index=index, seed=seed), threads, bank))
 
 
-def simulate_sequence(preset: DomainPreset, seed: int, length: int, threads: int = 0,
+def simulate_sequence(preset: Site, seed: int, length: int, threads: int = 0,
                       bank: BodyBank | None = None) -> Iterator[Frame]:
     """`length` consecutive frames of one viewpoint of `preset` and the same people (sequence seed `seed`): frame k
     scans from k frame periods after the first one's start. Each frame's metadata adds sequence_seed, time_s (its
@@ -125,7 +127,7 @@ def simulate_sequence(preset: DomainPreset, seed: int, length: int, threads: int
     yield from _frames(preset, frame_rng(seed, 0), length, dict(sequence_seed=seed), threads, bank)
 
 
-def _frames(preset: DomainPreset, rng: np.random.Generator, length: int, identity: dict, threads: int,
+def _frames(preset: Site, rng: np.random.Generator, length: int, identity: dict, threads: int,
             bank: BodyBank | None) -> Iterator[Frame]:
     """Frames 0..length-1 of one viewpoint and one set of people whose walks span all of them (one frame: as in a
     dataset), everything drawn from `rng`; identity: metadata that names the frame's origin."""
@@ -150,9 +152,9 @@ def _frames(preset: DomainPreset, rng: np.random.Generator, length: int, identit
         points, time_offset, boxes, names, records = render(caster, now, sensor, rng, bank, preset.lod, period / 2,
                                                             preset.time_step_s, preset.phase_steps, seconds)
         metadata = dict(
-            domain=preset.name, scene=viewpoint.scene, **identity, package_version=pcdet_memslidar.__version__,
-            mount=dict(height=mount.height, tilt_deg=mount.tilt_deg, roll_deg=mount.roll_deg, yaw_deg=mount.yaw_deg),
-            pattern=preset.pattern, sensor=preset.sensor, frame_period_s=period, label_time_s=period / 2,
+            domain=preset.name, scene=scene_name(viewpoint.scene), **identity,
+            package_version=pcdet_memslidar.__version__, mount=dataclasses.asdict(mount), pattern=pattern.name,
+            sensor=preset.sensor, frame_period_s=period, label_time_s=period / 2,
             num_pulses=caster.pulses, num_points=len(points), people=records)
         if length > 1:
             metadata.update(frame_index=k, time_s=round(k * period, 9),

@@ -142,8 +142,11 @@ PATTERNS = {
 }
 
 
-def get_pattern(name: str) -> ScanPattern:
-    """The scan pattern preset `name` ('cube1_paper' | 'cube1_2020')."""
+def get_pattern(name: str | ScanPattern) -> ScanPattern:
+    """The scan pattern preset `name` ('cube1_paper' | 'cube1_2020'), or `name` itself if it is a ScanPattern (a
+    site file's own)."""
+    if isinstance(name, ScanPattern):
+        return name
     if name not in PATTERNS:
         raise ConfigError(f"unknown scan pattern '{name}': choose one of {sorted(PATTERNS)}")
     return PATTERNS[name]

@@ -15,10 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.geometry.polygon import points_in_polygon
 from pcdet_memslidar.sim.bodies import BodyBank
-from pcdet_memslidar.sim.domains import DomainPreset
 from pcdet_memslidar.sim.motion import SAMPLE_DT, Trajectory, TrajectoryStack, make_trajectories
 from pcdet_memslidar.sim.scenes import Scene
+from pcdet_memslidar.sim.site import Site
 from pcdet_memslidar.utils.compiled import kernel
 
 BODY_RADIUS_M = 0.35  # clearance of a body's centre from obstacle footprints
@@ -47,13 +48,17 @@ class Person:
     vest: bool
 
 
-def visible_x_range(mount: Mount, vfov_deg: float, scene: Scene) -> tuple[float, float]:
+def visible_x_range(mount: Mount, vfov_deg: float, scene: Scene,
+                    walkable: tuple | None = None) -> tuple[float, float]:
     """(x_min, x_max) [m] of placements: from where a 1.2 m high head enters the lower FoV edge to the scene's
-    walking limit or where the upper FoV edge meets the ground."""
+    walking limit or where the upper FoV edge meets the ground, within the walkable polygon's x extent if any."""
     lower = math.radians(mount.tilt_deg + vfov_deg / 2)
     upper = math.radians(mount.tilt_deg - vfov_deg / 2)
-    x_min = max(1.0, (mount.height - 1.2) / math.tan(lower))
+    x_min = max(1.0, (mount.height - 1.2) / math.tan(lower)) if lower > 0 else 1.0
     x_max = scene.walk_x_max if upper <= 0 else min(scene.walk_x_max, mount.height / math.tan(upper))
+    if walkable is not None:
+        corners = np.asarray(walkable)
+        x_min, x_max = max(x_min, corners[:, 0].min()), min(x_max, corners[:, 0].max())
     return x_min, x_max
 
 
@@ -66,7 +71,7 @@ def _behaviour_table(behaviours: tuple[tuple[str, float], ...]) -> tuple[np.ndar
     return np.asarray(names), cdf / cdf[-1]
 
 
-def _draw_bodies(rng: np.random.Generator, count: int, preset: DomainPreset,
+def _draw_bodies(rng: np.random.Generator, count: int, preset: Site,
                  bank: BodyBank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body shapes (count,), their (count, materials) reflectivities and whether they wear a high-visibility vest
     (count,)."""
@@ -78,12 +83,12 @@ def _draw_bodies(rng: np.random.Generator, count: int, preset: DomainPreset,
     return shape, reflectivity, vest
 
 
-def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, mount: Mount, hfov_deg: float,
+def sample_people(rng: np.random.Generator, preset: Site, scene: Scene, mount: Mount, hfov_deg: float,
                   vfov_deg: float, frame_period_s: float, bank: BodyBank) -> list[Person]:
     """The people of one frame (possibly fewer than drawn when the scene is crowded)."""
     count = int(rng.integers(preset.people[0], preset.people[1] + 1))
     # candidate c: a leader (person 2 c) and a companion (person 2 c + 1) who comes along if it is a group
-    x_min, x_max = visible_x_range(mount, vfov_deg, scene)
+    x_min, x_max = visible_x_range(mount, vfov_deg, scene, preset.walkable)
     grouped = rng.random(MAX_TRIES) < preset.group_probability
     x = rng.uniform(x_min, x_max, MAX_TRIES)
     y = rng.uniform(-1.0, 1.0, MAX_TRIES) * (x * math.tan(math.radians(hfov_deg / 2)) + 1.0)
@@ -104,7 +109,7 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
         samples[3] += phase[:2 * tries, None]
         frame = np.flatnonzero((leaders.times >= 0.0) & (leaders.times <= frame_period_s))
         paths = np.ascontiguousarray(samples[:2, :, frame[0]:frame[-1] + 1].transpose(0, 2, 1))
-        accepted = _accepted(paths, grouped, count, scene, preset.min_separation_m)
+        accepted = _accepted(paths, grouped, count, scene, preset.min_separation_m, preset.walkable)
         if sum(map(len, accepted)) >= count:
             break
     trajectories = TrajectoryStack(leaders.times, samples)
@@ -115,22 +120,27 @@ def sample_people(rng: np.random.Generator, preset: DomainPreset, scene: Scene, 
     return people
 
 
-def _accepted(paths: np.ndarray, grouped: np.ndarray, count: int, scene: Scene,
-              separation_m: float) -> list[range]:
+def _accepted(paths: np.ndarray, grouped: np.ndarray, count: int, scene: Scene, separation_m: float,
+              walkable: tuple | None = None) -> list[range]:
     """The members of the candidates accepted in order until they make up `count` people, given the paths
     (2, F, m) [m] (x and y during the frame) of m people (person 2 c + member of candidate c): all clear of
-    obstacles and of those accepted before (a group of two only where two people are still missing)."""
+    obstacles and of those accepted before (a group of two only where two people are still missing), and inside
+    the walkable polygon ((x, y), ...) if any."""
+    off_floor = np.zeros(paths.shape[2], dtype=np.bool_)
+    if walkable is not None:
+        off_floor = ~points_in_polygon(paths.transpose(2, 1, 0), np.asarray(walkable)).all(axis=1)
     sizes = _accepted_sizes(paths, np.asarray(grouped, dtype=np.bool_), count,
                             scene.obstacles[:, :2].T - BODY_RADIUS_M, scene.obstacles[:, 2:].T + BODY_RADIUS_M,
-                            separation_m)
+                            separation_m, off_floor)
     return [range(2 * candidate, 2 * candidate + size) for candidate, size in enumerate(sizes.tolist()) if size]
 
 
 @kernel
-def _accepted_sizes(paths, grouped, count, obstacle_low, obstacle_high, separation_m):
+def _accepted_sizes(paths, grouped, count, obstacle_low, obstacle_high, separation_m, off_floor):
     """(m // 2,) people accepted of each candidate (0: not accepted) of the paths (2, F, m) [m], grouped (m // 2,)
     bool, obstacle footprints grown by the body (2, O) low and high x, y [m] (a path enters one where it is strictly
-    inside), people closer than separation_m [m] at some sample clash."""
+    inside), people closer than separation_m [m] at some sample clash, off_floor (m,) bool paths that leave the
+    walkable area."""
     frames, people = paths.shape[1], paths.shape[2]
     sizes = np.zeros(people // 2, np.int64)
     placed = np.empty(people, np.int64)
@@ -141,6 +151,8 @@ def _accepted_sizes(paths, grouped, count, obstacle_low, obstacle_high, separati
         members = 2 if grouped[candidate] and count - count_placed >= 2 else 1
         clear = True
         for p in range(2 * candidate, 2 * candidate + members):
+            if off_floor[p]:
+                clear = False
             for o in range(obstacle_low.shape[1]):
                 for f in range(frames):
                     x, y = paths[0, f, p], paths[1, f, p]

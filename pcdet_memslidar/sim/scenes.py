@@ -1,11 +1,13 @@
-"""Static worlds: three public street crossings, a park pathway and an industrial entrance.
+"""Static worlds: three public street crossings, a park pathway, an industrial entrance, and scenes that site
+files build from primitives.
 
 Every world is built in the normalised ground frame (origin on the ground below the sensor, x forward, y left,
 z up, metres) from boxes and prisms, each surface with a near-infrared (905 nm) reflectivity in [0, 1]. Solid
 objects also give footprints that people walk around.
 
-Public API: get_scene(name) -> Scene; SCENES (names); Scene.triangles() -> (vertices, triangles, reflectivity);
-World: builder of new scenes (box, patch, prism, tree, pole, car, bench, zebra; .surfaces).
+Public API: get_scene(name | SceneSpec) -> Scene; SCENES (bundled names); MATERIALS (name -> reflectivity);
+PRIMITIVES (kind -> World method); Scene.triangles() -> (vertices, triangles, reflectivity);
+World: builder of new scenes (box, patch, wall, prism, rack, tree, pole, car, bench, zebra; .surfaces).
 """
 from __future__ import annotations
 
@@ -19,6 +21,8 @@ from pcdet_memslidar.errors import ConfigError
 # near-infrared reflectivities of the materials used below
 ASPHALT, CONCRETE, PAINT, GRASS, BARK, FOLIAGE, BRICK, METAL, GLASS, CAR, WOOD, PLASTIC = (
     0.12, 0.30, 0.60, 0.45, 0.30, 0.50, 0.35, 0.40, 0.08, 0.25, 0.40, 0.20)
+MATERIALS = dict(asphalt=ASPHALT, concrete=CONCRETE, paint=PAINT, grass=GRASS, bark=BARK, foliage=FOLIAGE,
+                 brick=BRICK, metal=METAL, glass=GLASS, car=CAR, wood=WOOD, plastic=PLASTIC)
 
 _BOX_TRIANGLES = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4],
                            [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
@@ -37,18 +41,20 @@ class Surface:
 @dataclass(frozen=True)
 class Scene:
     """A static world: surfaces; walk_headings [rad], the typical walking directions (along paths, across
-    crossings); walk_x_max [m], how far from the sensor people are placed."""
+    crossings); walk_x_max [m], how far from the sensor people are placed; obstacles (O, 4) [x0, y0, x1, y1]
+    footprints people walk around (default: those of the solid surfaces)."""
 
     name: str
     surfaces: tuple[Surface, ...]
     walk_headings: tuple[float, ...]
     walk_x_max: float = 28.0
-    obstacles: np.ndarray = field(init=False)
+    obstacles: np.ndarray | None = field(default=None, compare=False)
 
     def __post_init__(self):
-        footprints = [np.concatenate([s.vertices[:, :2].min(0), s.vertices[:, :2].max(0)])
-                      for s in self.surfaces if s.solid]
-        object.__setattr__(self, "obstacles", np.array(footprints, dtype=np.float64).reshape(-1, 4))
+        if self.obstacles is None:
+            footprints = [np.concatenate([s.vertices[:, :2].min(0), s.vertices[:, :2].max(0)])
+                          for s in self.surfaces if s.solid]
+            object.__setattr__(self, "obstacles", np.array(footprints, dtype=np.float64).reshape(-1, 4))
 
     def triangles(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All surfaces merged: vertices (V, 3) float32, triangles (T, 3) uint32, reflectivity (T,) float32."""
@@ -83,6 +89,26 @@ class World:
         else:
             centre = [(x_range[0] + x_range[1]) / 2, (y_range[0] + y_range[1]) / 2]
             self.box(centre, (x_range[1] - x_range[0], y_range[1] - y_range[0], height), reflectivity, solid=False)
+
+    def wall(self, start_xy, end_xy, height, reflectivity=CONCRETE, thickness=0.2, z0=0.0):
+        """A wall of `thickness` from start_xy to end_xy (its centre line), `height` high from z0."""
+        start, end = np.asarray(start_xy, dtype=np.float64), np.asarray(end_xy, dtype=np.float64)
+        along = end - start
+        self.box((start + end) / 2, (np.hypot(*along), thickness, height), reflectivity, z0=z0,
+                 yaw=float(np.arctan2(along[1], along[0])))
+
+    def rack(self, centre_xy, length, depth=1.1, height=4.5, levels=(0.1, 1.5, 3.0), yaw=0.0, bay=2.7):
+        """A pallet rack along its length: metal uprights every `bay` m, shelves at `levels` [m] with a loaded
+        pallet (wood) in each bay."""
+        centre, c, s = np.asarray(centre_xy, dtype=np.float64), np.cos(yaw), np.sin(yaw)
+        bays = max(1, int(round(length / bay)))
+        for k in range(bays + 1):
+            self.box(centre + (k / bays - 0.5) * length * np.array([c, s]), (0.1, depth, height), METAL, yaw=yaw)
+        for z in levels:
+            self.box(centre, (length, depth, 0.08), METAL, z0=z, yaw=yaw, solid=False)
+            for k in range(bays):
+                at = centre + ((k + 0.5) / bays - 0.5) * length * np.array([c, s])
+                self.box(at, (min(1.2, length / bays), 0.8 * depth, 0.9), WOOD, z0=z + 0.08, yaw=yaw, solid=False)
 
     def prism(self, centre_xy, radius, height, reflectivity, z0=0.0, sides=8, solid=True):
         """A vertical `sides`-gon prism (poles, trunks, bins)."""
@@ -236,11 +262,64 @@ def _industrial_entrance() -> Scene:
 _BUILDERS = {"crossing_across": _crossing_across, "crossing_ahead": _crossing_ahead,
              "intersection": _intersection, "pathway": _pathway, "industrial_entrance": _industrial_entrance}
 SCENES = tuple(_BUILDERS)
+# primitive kind of a site file -> (World method, its parameters: required, then optional); a `material` parameter
+# takes a name of MATERIALS or a reflectivity in [0, 1]; angles in deg
+PRIMITIVES = {
+    "patch": ("patch", ("x", "y", "material"), ("height",)),
+    "box": ("box", ("centre", "size", "material"), ("z0", "yaw_deg", "solid")),
+    "machine": ("box", ("centre", "size"), ("material", "z0", "yaw_deg")),
+    "wall": ("wall", ("start", "end", "height"), ("material", "thickness", "z0")),
+    "pillar": ("prism", ("centre", "radius", "height"), ("material", "sides")),
+    "rack": ("rack", ("centre", "length"), ("depth", "height", "levels", "yaw_deg", "bay")),
+}
+_PARAMETERS = dict(x="x_range", y="y_range", centre="centre_xy", start="start_xy", end="end_xy",
+                   material="reflectivity", yaw_deg="yaw")
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """A scene of a site file: an optional bundled `base` scene, then primitives, each (kind, ((parameter,
+    value), ...)) with values as the file gives them (lists as tuples); walk_headings_deg and walk_x_max [m] (None:
+    the base scene's, or eight directions and 40 m)."""
+
+    name: str
+    base: str | None = None
+    primitives: tuple[tuple[str, tuple], ...] = ()
+    walk_headings_deg: tuple[float, ...] | None = None
+    walk_x_max: float | None = None
+
+
+def _build(spec: SceneSpec) -> Scene:
+    """The Scene of a site file's scene spec."""
+    base = get_scene(spec.base) if spec.base else None
+    world = World()
+    world.surfaces = list(base.surfaces) if base else []
+    for kind, parameters in spec.primitives:
+        method, _, _ = PRIMITIVES[kind]
+        arguments = {_PARAMETERS.get(key, key): value for key, value in parameters}
+        if kind == "machine":
+            arguments.setdefault("reflectivity", "metal")
+        if "reflectivity" in arguments and isinstance(arguments["reflectivity"], str):
+            arguments["reflectivity"] = MATERIALS[arguments["reflectivity"]]
+        if "yaw" in arguments:
+            arguments["yaw"] = float(np.deg2rad(arguments["yaw"]))
+        getattr(world, method)(**arguments)
+    headings = (tuple(np.deg2rad(spec.walk_headings_deg)) if spec.walk_headings_deg is not None
+                else base.walk_headings if base else tuple(np.arange(8) * np.pi / 4))
+    walk_x_max = spec.walk_x_max if spec.walk_x_max is not None else base.walk_x_max if base else 40.0
+    return Scene(spec.name, tuple(world.surfaces), tuple(float(h) for h in headings), float(walk_x_max))
 
 
 @functools.lru_cache(maxsize=None)
-def get_scene(name: str) -> Scene:
-    """The static world `name` (one of SCENES)."""
-    if name not in _BUILDERS:
-        raise ConfigError(f"unknown scene '{name}': choose one of {list(SCENES)}")
-    return _BUILDERS[name]()
+def get_scene(scene: str | SceneSpec) -> Scene:
+    """The static world `scene`: a bundled name (one of SCENES) or a site file's SceneSpec."""
+    if isinstance(scene, SceneSpec):
+        return _build(scene)
+    if scene not in _BUILDERS:
+        raise ConfigError(f"unknown scene '{scene}': choose one of {list(SCENES)}")
+    return _BUILDERS[scene]()
+
+
+def scene_name(scene: str | SceneSpec) -> str:
+    """The name a frame's metadata gives its scene."""
+    return scene.name if isinstance(scene, SceneSpec) else scene

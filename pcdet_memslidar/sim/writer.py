@@ -28,11 +28,12 @@ from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.io.kitti import read_label
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.sim.bodies import BANK_PATH
-from pcdet_memslidar.sim.domains import DomainPreset
+from pcdet_memslidar.sim.composite import composite_frame, recording_sha256
 from pcdet_memslidar.sim.frame import Frame, simulate_frame, simulate_sequence
 from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
+from pcdet_memslidar.sim.site import Site
 from pcdet_memslidar.utils.atomic import atomic_dir, write_bytes, write_text
 from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
 from pcdet_memslidar.utils.progress import progress_bar
@@ -52,13 +53,15 @@ def frame_id(index: int) -> str:
     return f"{index:06d}"
 
 
-def domain_settings(preset: DomainPreset, seed: int, sequence_length: int | None = None) -> dict:
+def domain_settings(preset: Site, seed: int, sequence_length: int | None = None) -> dict:
     """Everything that makes a domain's frames (or one sequence of sequence_length frames), with its sha256
     fingerprint under 'fingerprint'."""
     settings = dict(domain=preset.to_dict(), pattern=dataclasses.asdict(get_pattern(preset.pattern)),
                     sensor=dataclasses.asdict(get_sensor(preset.sensor)), seed=int(seed),
                     package_version=pcdet_memslidar.__version__,
                     body_bank_sha256=hashlib.sha256(BANK_PATH.read_bytes()).hexdigest())
+    if preset.background is not None:
+        settings["background_sha256"] = recording_sha256(preset.background)
     if sequence_length is not None:
         settings["sequence_length"] = int(sequence_length)
     text = json.dumps(settings, sort_keys=True, default=float)
@@ -86,10 +89,17 @@ def write_simulated_frame(layout: KittiLayout, index: int, frame: Frame, fingerp
     write_frame(layout, name, frame.points, frame.names, frame.boxes, metadata)
 
 
+def make_frame(site: Site, seed: int, index: int, threads: int = 0) -> Frame:
+    """Frame `index` of `site` with dataset seed `seed`: simulated, or composited into its background recording."""
+    if site.background is not None:
+        return composite_frame(site, seed, index, threads=threads)
+    return simulate_frame(site, seed, index, threads=threads)
+
+
 def _write_one(args) -> int:
-    """Simulate and write frame `index`; returns its number of points."""
+    """Make and write frame `index`; returns its number of points."""
     preset, seed, index, root, fingerprint, threads = args
-    frame = simulate_frame(preset, seed, index, threads=threads)
+    frame = make_frame(preset, seed, index, threads=threads)
     write_simulated_frame(KittiLayout(root), index, frame, fingerprint)
     return len(frame.points)
 
@@ -145,7 +155,7 @@ def _start_worker() -> None:
     exit_with_parent()
 
 
-def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
+def simulate_dataset(preset: Site, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
                      shard: tuple[int, int] = (0, 1), progress: bool = True) -> dict:
     """Make frames 0..frames-1 of `preset` (those of `shard` (I, N): index % N == I) under `out`.
 
@@ -186,13 +196,16 @@ def simulate_dataset(preset: DomainPreset, frames: int, out: str | Path, seed: i
                 fingerprint=settings["fingerprint"])
 
 
-def simulate_sequence_dataset(preset: DomainPreset, length: int, out: str | Path, seed: int = 0,
+def simulate_sequence_dataset(preset: Site, length: int, out: str | Path, seed: int = 0,
                               progress: bool = True) -> dict:
     """One sequence of `length` frames of `preset` (sim.frame.simulate_sequence, sequence seed `seed`) as a
     KITTI-layout dataset at `out`, written whole into a temporary folder that replaces `out` at the end (a
     sequence is made in order, so it is not resumed). Returns dict(written, points, people, fingerprint)."""
     if not 2 <= length <= MAX_FRAMES:
         raise ConfigError(f"--sequence must be between 2 and {MAX_FRAMES:,} frames, got {length}")
+    if preset.background is not None:
+        raise ConfigError(f"site '{preset.name}' composites people into a background recording, frame by frame: "
+                          f"--sequence needs a site with a scene")
     if seed < 0:
         raise ConfigError(f"--seed must be a non-negative integer, got {seed}")
     settings = domain_settings(preset, seed, sequence_length=length)

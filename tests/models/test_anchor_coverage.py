@@ -10,7 +10,7 @@ from pcdet_memslidar.config import load_config
 from pcdet_memslidar.grid import check_config_grid
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
 from pcdet_memslidar.models.target_assigner import matched_share
-from pcdet_memslidar.sim.domains import get_domain
+from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"

@@ -16,7 +16,7 @@ from pcdet_memslidar.evaluation import ap_summary, evaluate
 from pcdet_memslidar.evaluation.folders import read_label_folder
 from pcdet_memslidar.evaluation.report import table2, table3
 from pcdet_memslidar.reproduce import MODELS, RUNS, model_config, reproduce, train_detector
-from pcdet_memslidar.sim.domains import get_domain
+from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

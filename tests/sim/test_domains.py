@@ -5,16 +5,16 @@ import pytest
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io.kitti import MIN_BOX_POINTS
 from pcdet_memslidar.sim.bodies import load_body_bank
-from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.frame import simulate_frame
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import sample_people
 from pcdet_memslidar.sim.scenes import get_scene
+from pcdet_memslidar.sim.site import BUNDLED_SITES, get_domain
 
 PATTERN = get_pattern("cube1_paper")
 
 
-@pytest.mark.parametrize("name", sorted(DOMAINS))
+@pytest.mark.parametrize("name", list(BUNDLED_SITES))
 def test_domain_presets_have_their_documented_properties(name):
     preset = get_domain(name)
     assert preset.pattern == "cube1_paper"

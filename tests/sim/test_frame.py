@@ -3,8 +3,8 @@ import dataclasses
 
 import numpy as np
 
-from pcdet_memslidar.sim.domains import get_domain
 from pcdet_memslidar.sim.frame import simulate_frame
+from pcdet_memslidar.sim.site import get_domain
 
 
 def test_zero_people_gives_an_empty_label_and_the_static_world():

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.sim.bodies import load_body_bank
-from pcdet_memslidar.sim.domains import DOMAINS, get_domain
 from pcdet_memslidar.sim.motion import TrajectoryStack
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import BODY_RADIUS_M, GROUP_SPACING_M, MAX_TRIES, _accepted, sample_people
 from pcdet_memslidar.sim.scenes import get_scene
+from pcdet_memslidar.sim.site import BUNDLED_SITES, get_domain
 
 PATTERN = get_pattern("cube1_paper")
 
@@ -21,7 +21,7 @@ def people_of(preset, viewpoint, seed, bank):
     return people, rng
 
 
-@pytest.mark.parametrize("name", sorted(DOMAINS))
+@pytest.mark.parametrize("name", list(BUNDLED_SITES))
 def test_people_keep_their_distance_and_clear_of_obstacles_during_the_frame(name):
     preset, bank = get_domain(name), load_body_bank()
     for viewpoint in preset.viewpoints:
@@ -43,7 +43,7 @@ def test_people_keep_their_distance_and_clear_of_obstacles_during_the_frame(name
             assert np.allclose(gap[~apart & ~np.eye(len(people), dtype=bool)], GROUP_SPACING_M)
 
 
-@pytest.mark.parametrize("name", sorted(DOMAINS))
+@pytest.mark.parametrize("name", list(BUNDLED_SITES))
 def test_people_follow_the_preset(name):
     preset, bank = get_domain(name), load_body_bank()
     people = []

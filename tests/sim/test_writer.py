@@ -4,7 +4,7 @@ import pytest
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
-from pcdet_memslidar.sim.domains import get_domain
+from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
 

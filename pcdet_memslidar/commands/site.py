@@ -1,0 +1,78 @@
+"""`memslidar site check|train`: a site file's floor and field of view, and a detector for the site trained on
+its empty recording with people composited into it (pcdet_memslidar.site_detector).
+
+    memslidar site check --site FILE [--out DIR]
+    memslidar site train --site FILE [--out DIR] [--profile quick] [--frames N] [--test-frames N] [--holdout F]
+                         [--seed S] [--compare REPRODUCE_OUT] [--set KEY VALUE ...]
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.commands.options import add_profile, add_set
+from pcdet_memslidar.config import cfg as global_cfg
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.evaluation.figures import plot_ground_check
+from pcdet_memslidar.evaluation.report import HEADLINE
+from pcdet_memslidar.sim.composite import estimate_background_mount, recording_points
+from pcdet_memslidar.sim.site import load_site
+from pcdet_memslidar.site_detector import SitePlan, site_extent, train_site
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("action", choices=("check", "train"),
+                        help="check: the mount and floor (a figure to look at) and the site's grid; train: "
+                             "composite, train, test and report")
+    parser.add_argument("--site", type=Path, required=True, help="the site file (YAML, with background:)")
+    parser.add_argument("--out", type=Path, default=None, help="output folder (default output/site/<site name>)")
+    add_profile(parser, default="quick")
+    parser.add_argument("--frames", type=int, default=1200, help="composited training frames (default %(default)s, "
+                                                                 "the quick profile's training-set size)")
+    parser.add_argument("--test-frames", type=int, default=200,
+                        help="composited held-out frames AP is measured on (default %(default)s)")
+    parser.add_argument("--holdout", type=float, default=0.3,
+                        help="share of the recording, at its end, held out from training (default %(default)s)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the composited frames and the training")
+    parser.add_argument("--compare", type=Path, default=None,
+                        help="a `memslidar reproduce` output folder: its seed-0 models' false alarms on the same "
+                             "empty frames go into the report")
+    add_set(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    site = load_site(args.site, estimate_background_mount)
+    out = args.out or Path(global_cfg.ROOT_DIR) / "output" / "site" / site.name
+    if args.action == "check":
+        mount = site.viewpoints[0].mount
+        print(f"{args.site}: site '{site.name}', mount {dataclasses.asdict(mount)}")
+        if site.walkable is not None:
+            print(f"walkable area x {site_extent(site)[0]:.2f}..{site_extent(site)[2]:.2f} m, "
+                  f"y {site_extent(site)[1]:.2f}..{site_extent(site)[3]:.2f} m (with a person's margin)")
+        if site.background is not None:
+            points = recording_points(site.background)
+            figure = plot_ground_check(out / "ground_check.png", points, mount,
+                                       f"{site.name}: is z = 0 the floor?")
+            heights = mount.sensor_to_ground(points[:, :3])[:, 2]
+            print(f"{np.mean(np.abs(heights) < 0.1):.1%} of the returns lie within 0.1 m of the floor; look at "
+                  f"{figure}: the floor must lie on z = 0 in the side view")
+        return 0
+    for name in ("frames", "test_frames"):
+        if getattr(args, name) < 1:
+            raise ConfigError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    command = " ".join(["memslidar site train", f"--site {args.site}", f"--profile {args.profile}",
+                        f"--frames {args.frames}", f"--test-frames {args.test_frames}", f"--holdout {args.holdout}",
+                        f"--seed {args.seed}", *([f"--out {args.out}"] if args.out else []),
+                        *([f"--compare {args.compare}"] if args.compare else []),
+                        *(["--set", *args.set_cfgs] if args.set_cfgs else [])])
+    results = train_site(args.site, out.resolve(), SitePlan(args.frames, args.test_frames, args.holdout, args.seed),
+                         args.profile, args.compare, command, args.set_cfgs)
+    for model, entry in results["false_alarms"].items():
+        print(f"{model}: {entry['detections_per_frame']:.2f} detections / frame, {entry['confirmed_tracks']} "
+              f"confirmed tracks on the empty held-out frames")
+    print(f"site: {HEADLINE} {results['test'][HEADLINE]:.4f} on people composited into the held-out frames")
+    print(f"report: {out / 'report.md'}")
+    return 0

@@ -1,0 +1,293 @@
+"""Simulated people ray-cast into a real recording of the empty site (rendering-based compositing).
+
+For a static sensor a recording of the empty site says, per pulse, where the beam ends (or that it returns
+nothing). Per output frame:
+1. take a background frame (the recording's frames in turn) and its pulses: direction and time from the recording
+   (.bfpc lists every pulse, with or without a return), or, for point-cloud files, each return along its own
+   direction at the time of the site's scan-pattern pulse nearest to it, and the pattern's other pulses as pulses
+   without a return;
+2. place people on the walkable floor, clear of what the background shows standing on it (`obstacle_cells`);
+3. cast each pulse at its own time against the people (sim/caster.py, with the real ranges as the static world):
+   a pulse whose ray hits a person nearer than its real return (or that had none) returns the person's hit
+   through the site's sensor physics (range noise, mixed pixels, dropout, intensity); the real return behind it
+   is gone (the person's shadow);
+4. every other pulse keeps its real return bit for bit (normalised to the ground frame as `memslidar import` does);
+5. boxes and metadata as for simulated frames; the metadata names the background frame.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+import pcdet_memslidar
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io import ground
+from pcdet_memslidar.io.bfpc import read_bfpc
+from pcdet_memslidar.io.cvat import natural_key
+from pcdet_memslidar.io.pointclouds import SUFFIXES, read_point_cloud
+from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
+from pcdet_memslidar.sim.caster import Caster, FrameHits
+from pcdet_memslidar.sim.frame import Frame, frame_rng, points_of_returns
+from pcdet_memslidar.sim.labels import label_people
+from pcdet_memslidar.sim.pattern import PATTERNS, ScanPattern, get_pattern
+from pcdet_memslidar.sim.people import Person, sample_people
+from pcdet_memslidar.sim.scenes import Scene
+from pcdet_memslidar.sim.sensor import SensorModel, get_sensor
+from pcdet_memslidar.sim.site import Background, Site
+
+OBSTACLE_CELL_M = 0.25  # cells of the floor grid in which the background shows something people cannot walk through
+OBSTACLE_HEIGHT_M = (0.2, 1.8)  # returns between these heights above the floor make a cell an obstacle
+OBSTACLE_MIN_RETURNS = 2  # over all background frames: a lone noisy return does not block a cell
+WALK_HEADINGS = tuple(k * np.pi / 4 for k in range(8))  # people cross a background site in any direction
+MAX_MATCH_SPACINGS = 0.5  # median angle from a return to its matched pulse, in pulse spacings, of a pattern's own data
+
+
+@dataclass(frozen=True)
+class BackgroundFrame:
+    """One frame of a background recording, per pulse (P pulses, sensor frame): directions (P, 3) unit vectors,
+    time_offset (P,) [s] from the frame start, range (P,) [m] of its real return (inf: none), points (P, 4) float32
+    x, y, z, intensity of that return (nan: none); source: '<file>#<frame>'; time_s: start since the first frame
+    [s]; unmatched: returns left out (a weaker return of a pulse that has several)."""
+
+    source: str
+    directions: np.ndarray
+    time_offset: np.ndarray
+    range: np.ndarray
+    points: np.ndarray
+    time_s: float
+    unmatched: int = 0
+
+    @property
+    def returned(self) -> np.ndarray:
+        """(P,) bool: pulses with a real return."""
+        return np.isfinite(self.range)
+
+
+def _pattern_check(path: Path, stored, pattern: ScanPattern) -> None:
+    """DataFormatError naming the fix when a .bfpc recording's stored scan pattern is not the site's."""
+    if stored is None:
+        return
+    recorded = dict(hfov_deg=np.degrees(stored.hfov), vfov_deg=np.degrees(stored.vfov), lines_up=stored.lines_up,
+                    lines_down=stored.lines_down, angle_spacing_deg=np.degrees(stored.angle_spacing))
+    differs = [key for key, value in recorded.items() if abs(value - getattr(pattern, key)) > 1e-3]
+    if differs:
+        match = next((name for name, preset in PATTERNS.items()
+                      if all(abs(value - getattr(preset, key)) <= 1e-3 for key, value in recorded.items())), None)
+        fix = f"set sensor.pattern to {match}" if match else "set sensor.pattern to " + str(
+            {key: round(float(value), 4) for key, value in recorded.items()})
+        raise DataFormatError(path, f"recorded with another scan pattern than the site's '{pattern.name}' ("
+                                    f"{', '.join(differs)} differ): {fix} in the site file")
+
+
+def _bfpc_frames(path: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
+    recording = read_bfpc(path)
+    _pattern_check(path, recording.scan_pattern, pattern)
+    frames, first_ns = [], recording.frames[0].start_time_ns if recording.frames else 0
+    for index, frame in enumerate(recording.frames):
+        cos_el = np.cos(frame.elevation)
+        directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
+                               np.sin(frame.elevation)], axis=1)
+        strongest = frame.first_returns()
+        pulse = frame.return_pulse[strongest]
+        points = np.full((frame.num_pulses, 4), np.nan, dtype=np.float32)
+        points[pulse] = frame.points[strongest]
+        ranges = np.full(frame.num_pulses, np.inf)
+        ranges[pulse] = np.linalg.norm(frame.points[strongest, :3].astype(np.float64), axis=1)
+        frames.append(BackgroundFrame(f"{path.name}#{index}", directions, frame.time_offset, ranges, points,
+                                      (frame.start_time_ns - first_ns) * 1e-9, len(frame.points) - len(strongest)))
+    return frames
+
+
+def _cloud_frames(folder: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
+    """Frames of point-cloud files. Each return is a pulse along its own direction, at the time of the pattern's
+    pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a return."""
+    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in SUFFIXES), key=lambda p: natural_key(p.name))
+    if not files:
+        raise DataFormatError(folder, f"no {', '.join(SUFFIXES)} frames in this background folder")
+    directions, time_offset, _ = pattern.pulses()
+    tree, spacing = cKDTree(directions), np.radians(pattern.angle_spacing_deg)
+    frames = []
+    for index, path in enumerate(files):
+        cloud = read_point_cloud(path)
+        distance = np.linalg.norm(cloud.points[:, :3].astype(np.float64), axis=1)
+        own = cloud.points[:, :3] / distance[:, None]
+        angle, pulse = tree.query(own)  # chord ~ angle [rad] at these scales
+        if len(angle) and np.median(angle) > MAX_MATCH_SPACINGS * spacing:
+            raise DataFormatError(path, f"its returns lie {np.degrees(np.median(angle)):.2f} deg (median) from the "
+                                        f"nearest pulse of the site's scan pattern '{pattern.name}' (spacing "
+                                        f"{pattern.angle_spacing_deg:g} deg): recorded with another pattern; set "
+                                        f"sensor.pattern in the site file to the recording's")
+        silent = np.setdiff1d(np.arange(len(directions)), pulse)
+        times = np.concatenate([time_offset[pulse], time_offset[silent]])
+        order = np.argsort(times, kind="stable")
+        points = np.concatenate([cloud.points, np.full((len(silent), 4), np.nan, dtype=np.float32)])
+        frames.append(BackgroundFrame(path.name, np.concatenate([own, directions[silent]])[order], times[order],
+                                      np.concatenate([distance, np.full(len(silent), np.inf)])[order],
+                                      points[order], index * pattern.frame_period_s))
+    return frames
+
+
+@functools.lru_cache(maxsize=4)
+def read_background(background: Background, pattern: str | ScanPattern) -> tuple[BackgroundFrame, ...]:
+    """The frames background.frames (first, stop) of a background recording (.bfpc file or folder of point
+    clouds), per pulse; DataFormatError naming the file and fix when it does not fit the site's `pattern`."""
+    path, pattern = Path(background.recording), get_pattern(pattern)
+    frames = _bfpc_frames(path, pattern) if path.is_file() else _cloud_frames(path, pattern)
+    first, stop = background.frames or (0, len(frames))
+    if stop > len(frames) or not frames:
+        raise DataFormatError(path, f"background.frames [{first}, {stop}) asks for more than its {len(frames)} "
+                                    f"frames; fix background.frames in the site file")
+    return tuple(frames[first:stop])
+
+
+def recording_sha256(background: Background) -> str:
+    """sha256 of the recording's bytes (its files in name order for a folder): part of a site's fingerprint."""
+    path = Path(background.recording)
+    files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES)
+    digest = hashlib.sha256()
+    for file in files:
+        digest.update(file.name.encode() + file.read_bytes())
+    return digest.hexdigest()
+
+
+def recording_points(background: Background, frames: int = 5) -> np.ndarray:
+    """(N, 4) float32 returns (sensor frame) of the first `frames` frames of background.frames: what a mount is
+    estimated from."""
+    path = Path(background.recording)
+    first = background.frames[0] if background.frames else 0
+    if path.is_file():
+        recording = read_bfpc(path).frames[first:first + frames]
+        clouds = [frame.points[frame.first_returns()] for frame in recording]
+    else:
+        files = sorted((p for p in path.iterdir() if p.suffix.lower() in SUFFIXES), key=lambda p: natural_key(p.name))
+        clouds = [read_point_cloud(file).points for file in files[first:first + frames]]
+    if not clouds:
+        raise DataFormatError(path, "holds no frames to estimate the mount from")
+    return np.concatenate(clouds)
+
+
+def estimate_background_mount(background: Background) -> Mount:
+    """The mount estimated from the floor of the background's first frames (io.ground.estimate_ground);
+    ConfigError naming the fix when no floor is found."""
+    try:
+        return ground.estimate_ground(recording_points(background)).mount
+    except ValueError as error:
+        raise ConfigError(f"{background.recording}: {error} (mount: in the site file)") from None
+
+
+def obstacle_cells(frames: tuple[BackgroundFrame, ...], mount: Mount) -> np.ndarray:
+    """(O, 4) [x0, y0, x1, y1] footprints [m] of the floor cells (OBSTACLE_CELL_M) in which the background frames
+    show at least OBSTACLE_MIN_RETURNS returns between OBSTACLE_HEIGHT_M above the floor: furniture, machines,
+    walls that people do not walk through."""
+    points = np.concatenate([mount.sensor_to_ground(frame.points[frame.returned, :3]) for frame in frames])
+    standing = points[(points[:, 2] > OBSTACLE_HEIGHT_M[0]) & (points[:, 2] < OBSTACLE_HEIGHT_M[1])]
+    cells, counts = np.unique(np.floor(standing[:, :2] / OBSTACLE_CELL_M).astype(np.int64), axis=0,
+                              return_counts=True)
+    low = cells[counts >= OBSTACLE_MIN_RETURNS] * OBSTACLE_CELL_M
+    return np.concatenate([low, low + OBSTACLE_CELL_M], axis=1).reshape(-1, 4)
+
+
+class BackgroundWorld:
+    """A background site's frames, its walkable scene (no surfaces: the recording is the world; obstacles from
+    `obstacle_cells`) and one caster per background frame (built on first use, once per process)."""
+
+    def __init__(self, site: Site):
+        if site.background is None or site.walkable is None:
+            raise ConfigError(f"site '{site.name}': compositing needs a background and a walkable polygon")
+        self.site, self.mount = site, site.viewpoints[0].mount
+        self.pattern, self.sensor = get_pattern(site.pattern), get_sensor(site.sensor)
+        self.frames = read_background(site.background, site.pattern)
+        corners = np.asarray(site.walkable)
+        self.scene = Scene("background", (), WALK_HEADINGS, float(corners[:, 0].max()),
+                           obstacles=obstacle_cells(self.frames, self.mount))
+        self._casters: dict[tuple[int, int], Caster] = {}
+        self._lock = threading.Lock()
+
+    def caster(self, index: int, threads: int) -> Caster:
+        """The caster of background frame `index` (its pulses, its real ranges as the static world)."""
+        with self._lock:
+            if (index, threads) not in self._casters:
+                frame = self.frames[index]
+                self._casters[index, threads] = Caster(
+                    frame.range, self.mount, frame.directions, frame.time_offset, self.pattern.frame_period_s,
+                    load_body_bank(), lod=self.site.lod, beam_divergence_rad=self.sensor.beam_divergence_rad,
+                    threads=threads)
+            return self._casters[index, threads]
+
+
+@functools.lru_cache(maxsize=4)
+def background_world(site: Site) -> BackgroundWorld:
+    return BackgroundWorld(site)
+
+
+@dataclass
+class Composite:
+    """A background frame with people cast into it: points (N, 4) float32 [x, y, z, intensity] in the ground frame
+    and time_offset (N,) float32 [s], in pulse order; pulse (N,) the pulse of each point; person (N,) the person a
+    point is on (-1: a real return); hits: the caster's nearest hits of every pulse."""
+
+    points: np.ndarray
+    time_offset: np.ndarray
+    pulse: np.ndarray
+    person: np.ndarray
+    hits: FrameHits
+
+    @property
+    def hidden(self) -> np.ndarray:
+        """Pulses whose nearest hit is a person (their real return, if any, is gone)."""
+        return np.flatnonzero(self.hits.person >= 0)
+
+
+def composite_pulses(background: BackgroundFrame, caster: Caster, people: list[Person], sensor: SensorModel,
+                     rng: np.random.Generator, mount: Mount, time_step_s: float = 0.0,
+                     phase_steps: int | None = None) -> Composite:
+    """Cast `people` into one background frame (caster: built on its pulses and real ranges); steps 3 and 4 of the
+    module docstring."""
+    # cast every pulse at its own time; pulses whose person hit is nearer than the real return change
+    hits = caster.cast_frame(people, time_step_s, phase_steps)
+    changed = np.flatnonzero(hits.person >= 0)
+    edge = None if hits.edge_range is None else hits.edge_range[changed]
+    pulse, measured, intensity = sensor.returns(hits.range[changed], hits.cos_incidence[changed],
+                                                hits.reflectivity[changed], rng, edge)
+    person_pulse = changed[pulse]
+    person_points, _ = points_of_returns(caster.origin, caster.directions, caster.time_offset, person_pulse,
+                                         measured, intensity)
+    # every other pulse keeps its real return, normalised as an import would
+    kept = np.flatnonzero(background.returned & (hits.person < 0))
+    pulses = np.concatenate([kept, person_pulse])
+    order = np.argsort(pulses, kind="stable")
+    points = np.concatenate([ground.normalise_points(background.points[kept], mount), person_points])[order]
+    return Composite(points, background.time_offset[pulses[order]].astype(np.float32), pulses[order],
+                     np.concatenate([np.full(len(kept), -1), hits.person[person_pulse]])[order], hits)
+
+
+def composite_frame(site: Site, seed: int, index: int, threads: int = 0, bank: BodyBank | None = None) -> Frame:
+    """Frame `index` of a background site with dataset seed `seed`: background frame index % (its frames), people
+    drawn from the frame's own generator (sim.frame.frame_rng)."""
+    rng, bank = frame_rng(seed, index), bank or load_body_bank()
+    world = background_world(site)
+    k = index % len(world.frames)
+    background, caster, period = world.frames[k], world.caster(k, threads), world.pattern.frame_period_s
+    people = sample_people(rng, site, world.scene, world.mount, world.pattern.hfov_deg, world.pattern.vfov_deg,
+                           period, bank)
+    result = composite_pulses(background, caster, people, world.sensor, rng, world.mount, site.time_step_s,
+                              site.phase_steps)
+    # labels from the simulator state
+    returned = np.bincount(result.person[result.person >= 0], minlength=len(people))
+    hit = np.bincount(result.hits.person[result.hidden], minlength=len(people))
+    boxes, names, records = label_people(bank, site.lod, people, period / 2, returned, hit, result.hits.unoccluded)
+    metadata = dict(
+        domain=site.name, scene="background", background=background.source, background_time_s=background.time_s,
+        frame_index=index, seed=seed, package_version=pcdet_memslidar.__version__,
+        mount=dataclasses.asdict(world.mount), pattern=world.pattern.name, sensor=site.sensor, frame_period_s=period,
+        label_time_s=period / 2, num_pulses=caster.pulses, num_points=len(result.points),
+        background_returns_hidden=int(background.returned[result.hidden].sum()), people=records)
+    return Frame(result.points, result.time_offset, boxes, names, metadata)
