@@ -30,12 +30,12 @@ from pcdet_memslidar.datasets.mixing import Source
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_frames
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.evaluation.report import HEADLINE, environment, json_safe
+from pcdet_memslidar.evaluation.report import HEADLINE, environment, json_safe, write_report
 from pcdet_memslidar.grid import fitted_range, xy_cell_multiple
 from pcdet_memslidar.io.importer import import_frames, list_frames
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
-from pcdet_memslidar.monitor.detect import DetectOptions, detect
+from pcdet_memslidar.monitor.detect import DetectOptions, detect, resolve_format
 from pcdet_memslidar.monitor.tracker import TrackerConfig
 from pcdet_memslidar.reproduce import RUN_CONFIG, RUN_FILE, StageClock, run_model
 from pcdet_memslidar.runtime.common import create_logger
@@ -51,6 +51,12 @@ MODEL_CONFIG = CONFIG_DIR / "memslidar_models" / "second_person.yaml"
 SITE_CONFIG = "site.yaml"
 PERSON_MARGIN_M = 0.4  # the grid reaches this far beyond the walkable area (half a person)
 Z_RANGES = {"paper": (-0.5, 2.5)}  # z of the shipped paper grid; the profiles' z is theirs
+# Augmentations a site detector goes without: pasted people (gt_sampling) keep what they hide and may stand inside
+# furniture, where composited ones are ray-cast; a static sensor never sees its site mirrored or turned (and an
+# asymmetric room turned about the sensor leaves its grid). Training settings of the quick profile for a site, chosen
+# on the validation part of the composited training frames (docs/sites.md, "How the site recipe was chosen").
+SITE_DISABLED_AUGMENTATIONS = ["gt_sampling", "random_world_flip", "random_world_rotation"]
+SITE_QUICK_OPTIMIZATION = {"LR": 0.0005, "NUM_EPOCHS": 12}
 TRACKER_MIN_SCORE = TrackerConfig().min_score  # detections below it are neither tracked nor reported
 
 
@@ -102,26 +108,25 @@ def site_config(site: Site, data_path: Path, train_frames: int) -> dict:
         z_range = Z_RANGES.get(name, cfg.DATA_CONFIG.POINT_CLOUD_RANGE[2::3])
         profiles[name] = fitted_range(extent, z_range, voxel[0], xy_cell_multiple(cfg.MODEL))
     mix = {"TOTAL": train_frames, "SOURCES": [{"NAME": "train", "RATIO": 1.0}]}
+    overrides = {name: {"DATA_CONFIG": {"POINT_CLOUD_RANGE": profiles[name], "MIX": {"TOTAL": train_frames}}}
+                 for name in base.PROFILES}
+    overrides["quick"]["OPTIMIZATION"] = SITE_QUICK_OPTIMIZATION
     return {
         "_BASE_CONFIG_": str(MODEL_CONFIG),
         "DATA_CONFIG": {"DATA_PATH": str(data_path), "POINT_CLOUD_RANGE": profiles["paper"], "MIX": mix,
-                        "TEST_SOURCE": {"NAME": "test", "COUNT": None}},
-        "PROFILES": {name: {"DATA_CONFIG": {"POINT_CLOUD_RANGE": profiles[name], "MIX": {"TOTAL": train_frames}}}
-                     for name in base.PROFILES},
+                        "TEST_SOURCE": {"NAME": "test", "COUNT": None},
+                        "DATA_AUGMENTOR": {"DISABLE_AUG_LIST": SITE_DISABLED_AUGMENTATIONS}},
+        "PROFILES": overrides,
     }
 
 
 def write_empty_frames(site: Site, held: tuple[int, int], out: Path) -> int:
     """The held-out background frames as they are (nobody in them), in the site's ground frame, as a KITTI-layout
     folder `out` (memslidar import's writer); returns their number."""
-    mount = site.viewpoints[0].mount
-    recording = Path(site.background.recording)
-    fmt = "bfpc" if recording.is_file() else next(
-        path.suffix[1:].lower() for path in sorted(recording.iterdir()) if path.suffix.lower() in
-        (".pcd", ".ply", ".npy", ".bin"))
+    mount, recording = site.viewpoints[0].mount, Path(site.background.recording)
+    fmt = resolve_format(recording, "auto")
     frames = list_frames(fmt, recording)[held[0]:held[1]]
-    entry = {"source": "the site file", **dataclasses.asdict(mount)}
-    import_frames(frames, out, mount, entry, fmt, recording, point_cloud_range=[-1e3, -1e3, -1e3, 1e3, 1e3, 1e3])
+    import_frames(frames, out, mount, {"source": "the site file", **dataclasses.asdict(mount)}, fmt, recording)
     return len(frames)
 
 
@@ -213,11 +218,9 @@ def train_site(site_file: Path, out: Path, plan: SitePlan, profile: str = "quick
         results["figure"] = str(plot_site_frames(out / "site_detections.png", data, out, out / run["predictions"],
                                                  cfg.DATA_CONFIG.POINT_CLOUD_RANGE))
     results["stages"], results["wall_seconds"] = clock.seconds, time.perf_counter() - wall_start
-    results = json_safe(results)
-    write_text(out / "results.json", json.dumps(results, indent=2) + "\n")
-    write_text(out / "report.md", render_site_report(results))
-    logger.info(f"{HEADLINE} {run['metrics'][HEADLINE]:.4f}; report: {out / 'report.md'}")
-    return results
+    report_path, _ = write_report(results, out, render_site_report)
+    logger.info(f"{HEADLINE} {run['metrics'][HEADLINE]:.4f}; report: {report_path}")
+    return json_safe(results)
 
 
 def render_site_report(results: dict) -> str:
@@ -227,10 +230,10 @@ def render_site_report(results: dict) -> str:
                      f"{entry['confirmed_tracks']} | {entry['tracks_per_minute']:.1f} | "
                      f"{'-' if entry['max_score'] is None else format(entry['max_score'], '.2f')} |"
                      for model, entry in alarms.items())
-    metrics = results["test"]
+    metrics, machine = results["test"], results["environment"]["machine"]
     lines = [
         f"# Site detector: {results['site']}", "",
-        f"{results['date']}, {results['environment']['machine']['cpu']} ({results['environment']['machine']['cores']} cores); command: `{results['command']}`; "
+        f"{results['date']}, {machine['cpu']} ({machine['cores']} cores); command: `{results['command']}`; "
         f"profile {results['profile']}; wall time {results['wall_seconds'] / 60:.1f} min.", "",
         f"Background: `{results['background']}`; frames {results['held_out_frames'][0]} to "
         f"{results['held_out_frames'][1] - 1} held out (never trained on). Mount {results['mount']}. "

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import copy
 import datetime
-import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,7 @@ from pcdet_memslidar.config import profile_settings
 from pcdet_memslidar.datasets.mixing import source_counts
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_sweep
-from pcdet_memslidar.evaluation.report import HEADLINE, ap_text, environment, json_safe, summarise_runs
+from pcdet_memslidar.evaluation.report import HEADLINE, ap_text, environment, json_safe, summarise_runs, write_report
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.reproduce import (
     RUNS,
@@ -40,7 +39,7 @@ from pcdet_memslidar.reproduce import (
     training_jobs,
 )
 from pcdet_memslidar.runtime.common import create_logger
-from pcdet_memslidar.utils.atomic import refuse_overlap, write_text
+from pcdet_memslidar.utils.atomic import refuse_overlap
 
 BASE_MODEL = "M3"  # the sweeps change only the training set of cfgs/m3.yaml
 SIM, REAL = "sim", "real"
@@ -186,11 +185,9 @@ def sweep(kind: str, profile: str, seeds: int, out: Path, data_root: Path | None
     results["figure"] = f"{kind}.png"
     results["stages"] = clock.seconds
     results["wall_seconds"] = time.perf_counter() - wall_start
-    results = json_safe(results)
-    write_text(out / "results.json", json.dumps(results, indent=2) + "\n")
-    write_text(out / "report.md", render_sweep(results))
-    logger.info(f"report: {out / 'report.md'}; results: {out / 'results.json'}")
-    return results
+    report_path, json_path = write_report(results, out, render_sweep)
+    logger.info(f"report: {report_path}; results: {json_path}")
+    return json_safe(results)
 
 
 def render_sweep(results: dict) -> str:

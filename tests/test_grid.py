@@ -11,7 +11,7 @@ from pcdet_memslidar import openpcdet
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.grid import check_config_grid, check_second_grid
+from pcdet_memslidar.grid import check_config_grid, check_second_grid, fitted_range, xy_cell_multiple
 from pcdet_memslidar.models import build_network
 
 CFGS = Path(__file__).resolve().parents[1] / "cfgs"
@@ -130,3 +130,15 @@ def test_folded_boxes_take_one_anchor_rotation():
     unfolded = json.dumps(steps)  # JSON is YAML
     assert check_config_grid(_quick(QUICK_RANGE, *two, "DATA_CONFIG.DATA_PROCESSOR", unfolded)).tolist() == \
         [384, 464, 40]
+
+
+def test_a_sites_grid_is_the_smallest_that_covers_it_and_fits_second():
+    extent = (1.6, -4.9, 8.6, 1.6)  # a walkable area and its margin [m]
+    quick = load_config(CFGS / "m3.yaml", profile="quick")
+    assert xy_cell_multiple(quick.MODEL) == 16 and xy_cell_multiple(PAPER_MODEL) == 16
+    fitted = fitted_range(extent, (0.1, 2.5), 0.1, 16)
+    assert fitted == [1.1, -5.6, 0.1, 9.1, 2.4, 2.5]  # 7.0 x 6.5 m -> 80 x 80 cells, centred (half-even rounding)
+    assert check_second_grid(quick.MODEL, fitted, [0.1, 0.1, 0.06]).tolist() == [80, 80, 40]
+    assert fitted_range(extent, (-0.5, 2.5), 0.05, 16) == [1.5, -5.25, -0.5, 8.7, 1.95, 2.5]  # 144 x 144 cells
+    # a 0.1 m area: one multiple (1.6 m) around its centre 0.05, whose start -7.5 voxels rounds half-even to -8
+    assert fitted_range((0.0, 0.0, 0.1, 0.1), (0.1, 2.5), 0.1, 16) == [-0.8, -0.8, 0.1, 0.8, 0.8, 2.5]

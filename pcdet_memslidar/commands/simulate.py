@@ -34,6 +34,10 @@ def run(args: argparse.Namespace) -> int:
     preset = get_domain(args.domain) if args.domain else load_site(args.site, estimate_background_mount)
     if preset.background is not None:
         read_background(preset.background, preset.pattern)  # refused now if it does not fit the site's pattern
+        mount = preset.viewpoints[0].mount
+        print(f"people composited into {preset.background.recording} at mount height {mount.height:.3f} m, tilt "
+              f"{mount.tilt_deg:.2f} deg, roll {mount.roll_deg:.2f} deg (`memslidar site check --site {args.site}` "
+              f"draws its floor)")
     if args.sequence is not None:
         if args.frames is not None or args.shard != "0/1":
             raise ConfigError("--sequence N makes N frames in order: leave out --frames and --shard")

@@ -410,11 +410,12 @@ def json_safe(value):
     return value
 
 
-def write_report(results: dict, out_dir: str | Path) -> tuple[Path, Path]:
-    """Write `out_dir`/results.json and `out_dir`/report.md atomically; returns their paths."""
+def write_report(results: dict, out_dir: str | Path, render=None) -> tuple[Path, Path]:
+    """Write `out_dir`/results.json and `out_dir`/report.md (render(results) -> markdown; default: the
+    reproduction's render_report) atomically; returns their paths."""
     out_dir = Path(out_dir)
     results = json_safe(results)
     json_path, report_path = out_dir / "results.json", out_dir / "report.md"
     write_text(json_path, json.dumps(results, indent=2) + "\n")
-    write_text(report_path, render_report(results))
+    write_text(report_path, (render or render_report)(results))
     return report_path, json_path
