@@ -213,7 +213,7 @@ def train_site(site_file: Path, out: Path, plan: SitePlan, profile: str = "quick
                "held_out_frames": list(held), "mount": dataclasses.asdict(site.viewpoints[0].mount),
                "point_cloud_range": list(cfg.DATA_CONFIG.POINT_CLOUD_RANGE), "config": str(config_path),
                "checkpoint": str(final_checkpoint(cfg, run_dir)), "test": run["metrics"], "curve": run["curve"],
-               "false_alarms": alarms, "min_score": TRACKER_MIN_SCORE}
+               "false_alarms": alarms, "min_score": TRACKER_MIN_SCORE, "frame_period_s": period}
     with clock("figures"):  # 6.
         results["figure"] = str(plot_site_frames(out / "site_detections.png", data, out, out / run["predictions"],
                                                  cfg.DATA_CONFIG.POINT_CLOUD_RANGE))
@@ -240,7 +240,8 @@ def render_site_report(results: dict) -> str:
         f"Grid (POINT_CLOUD_RANGE) {results['point_cloud_range']}.", "",
         "## False alarms on the held-out empty frames", "",
         f"Nobody is in these frames: every detection at score >= {results['min_score']} (the tracker's min_score) "
-        "is a false alarm.", "",
+        f"is a false alarm. They span {alarms['site']['frames'] * results['frame_period_s']:.2f} s of the recording: "
+        "tracks per minute extrapolate from that.", "",
         "| model | frames | detections / frame | confirmed tracks | tracks / minute | highest score |",
         "|---|---|---|---|---|---|", rows, "",
         "## People composited into the held-out frames", "",

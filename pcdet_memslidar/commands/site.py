@@ -54,8 +54,9 @@ def run(args: argparse.Namespace) -> int:
                   f"y {site_extent(site)[1]:.2f}..{site_extent(site)[3]:.2f} m (with a person's margin)")
         if site.background is not None:
             points = recording_points(site.background)
-            figure = plot_ground_check(out / "ground_check.png", points, mount,
-                                       f"{site.name}: is z = 0 the floor?")
+            walkable = None if site.walkable is None else np.array(site.walkable)
+            figure = plot_ground_check(out / "ground_check.png", points, mount, f"{site.name}: is z = 0 the floor?",
+                                       walkable=walkable)
             heights = mount.sensor_to_ground(points[:, :3])[:, 2]
             print(f"{np.mean(np.abs(heights) < 0.1):.1%} of the returns lie within 0.1 m of the floor; look at "
                   f"{figure}: the floor must lie on z = 0 in the side view")

@@ -366,10 +366,11 @@ def plot_tracks_frame(path: str | Path, boxes: np.ndarray, track_ids: list[int |
 
 
 def plot_ground_check(path: str | Path, points: np.ndarray, mount: Mount, title: str = "",
-                      floor_band_m: float = 0.1) -> Path:
+                      floor_band_m: float = 0.1, walkable: np.ndarray | None = None) -> Path:
     """The evidence for a mount: (N, 3+) points in the SENSOR frame [m], normalised with `mount`, seen from the
-    side (x, z; the fitted floor z = 0 drawn as a line) and from above (x, y); points within floor_band_m of z = 0
-    in orange. If the mount is right, the orange points are the floor, flat along x."""
+    side (x, z; the fitted floor z = 0 drawn as a line) and from above (x, y; a site's walkable polygon (K, 2), if
+    given, outlined); points within floor_band_m of z = 0 in orange. If the mount is right, the orange points are
+    the floor, flat along x."""
     ground = mount.sensor_to_ground(np.asarray(points)[:, :3])
     floor = np.abs(ground[:, 2]) < floor_band_m
     x_range, y_range = np.percentile(ground[:, 0], [1, 99]), np.percentile(ground[:, 1], [1, 99])
@@ -378,6 +379,10 @@ def plot_ground_check(path: str | Path, points: np.ndarray, mount: Mount, title:
     for ax, column in ((side, 2), (top, 1)):
         for mask, color, size in ((~floor, POINT_COLOR, 0.3), (floor, "tab:orange", 1.0)):
             ax.scatter(ground[mask, 0], ground[mask, column], s=size, c=color, linewidths=0)
+    if walkable is not None:
+        top.add_patch(Polygon(walkable, closed=True, fill=False, edgecolor="tab:green", linewidth=1.2,
+                              label="walkable area"))
+        top.legend(fontsize=8, loc="upper left")
     side.axhline(0.0, color="tab:blue", linewidth=1, label="fitted floor z = 0")
     side.legend(fontsize=8, loc="upper left")
     side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=x_range, ylim=(-1.0, 3.0))

@@ -112,35 +112,35 @@ def points_of_returns(origin, directions, pulse_time, pulse, range_m, intensity)
     return points, time_offset
 
 
-def simulate_frame(preset: Site, seed: int, index: int, threads: int = 0,
+def simulate_frame(site: Site, seed: int, index: int, threads: int = 0,
                    bank: BodyBank | None = None) -> Frame:
-    """Frame `index` of domain `preset` with dataset seed `seed`."""
-    return next(_frames(preset, frame_rng(seed, index), 1, dict(frame_index=index, seed=seed), threads, bank))
+    """Frame `index` of `site` with dataset seed `seed`."""
+    return next(_frames(site, frame_rng(seed, index), 1, dict(frame_index=index, seed=seed), threads, bank))
 
 
-def simulate_sequence(preset: Site, seed: int, length: int, threads: int = 0,
+def simulate_sequence(site: Site, seed: int, length: int, threads: int = 0,
                       bank: BodyBank | None = None) -> Iterator[Frame]:
-    """`length` consecutive frames of one viewpoint of `preset` and the same people (sequence seed `seed`): frame k
+    """`length` consecutive frames of one viewpoint of `site` and the same people (sequence seed `seed`): frame k
     scans from k frame periods after the first one's start. Each frame's metadata adds sequence_seed, time_s (its
     start [s]) and person_ids (M,): the person (an index into metadata['people'], the same people in every frame)
     of each box, for tracking metrics."""
-    yield from _frames(preset, frame_rng(seed, 0), length, dict(sequence_seed=seed), threads, bank)
+    yield from _frames(site, frame_rng(seed, 0), length, dict(sequence_seed=seed), threads, bank)
 
 
-def _frames(preset: Site, rng: np.random.Generator, length: int, identity: dict, threads: int,
+def _frames(site: Site, rng: np.random.Generator, length: int, identity: dict, threads: int,
             bank: BodyBank | None) -> Iterator[Frame]:
     """Frames 0..length-1 of one viewpoint and one set of people whose walks span all of them (one frame: as in a
     dataset), everything drawn from `rng`; identity: metadata that names the frame's origin."""
     start = time.perf_counter()
     bank = bank or load_body_bank()
-    pattern, sensor = get_pattern(preset.pattern), get_sensor(preset.sensor)
+    pattern, sensor = get_pattern(site.pattern), get_sensor(site.sensor)
     period = pattern.frame_period_s
     # pick the viewpoint; its static world is built and cast once per process
-    viewpoint = preset.viewpoints[int(rng.integers(len(preset.viewpoints)))]
+    viewpoint = site.viewpoints[int(rng.integers(len(site.viewpoints)))]
     scene = get_scene(viewpoint.scene)
-    caster = get_caster(viewpoint.scene, viewpoint.mount, preset.pattern, preset.sensor, preset.lod, threads)
+    caster = get_caster(viewpoint.scene, viewpoint.mount, site.pattern, site.sensor, site.lod, threads)
     # place the people and their trajectories over all the frames
-    people = sample_people(rng, preset, scene, viewpoint.mount, pattern.hfov_deg, pattern.vfov_deg,
+    people = sample_people(rng, site, scene, viewpoint.mount, pattern.hfov_deg, pattern.vfov_deg,
                            length * period, bank)
     mount = viewpoint.mount
     setup_seconds = time.perf_counter() - start
@@ -149,12 +149,12 @@ def _frames(preset: Site, rng: np.random.Generator, length: int, identity: dict,
         # the trajectories' clock shifted so that this frame starts at 0
         times = people[0].trajectory.times - k * period if people else None
         now = [replace(p, trajectory=Trajectory(times, p.trajectory.samples)) for p in people]
-        points, time_offset, boxes, names, records = render(caster, now, sensor, rng, bank, preset.lod, period / 2,
-                                                            preset.time_step_s, preset.phase_steps, seconds)
+        points, time_offset, boxes, names, records = render(caster, now, sensor, rng, bank, site.lod, period / 2,
+                                                            site.time_step_s, site.phase_steps, seconds)
         metadata = dict(
-            domain=preset.name, scene=scene_name(viewpoint.scene), **identity,
+            domain=site.name, scene=scene_name(viewpoint.scene), **identity,
             package_version=pcdet_memslidar.__version__, mount=dataclasses.asdict(mount), pattern=pattern.name,
-            sensor=preset.sensor, frame_period_s=period, label_time_s=period / 2,
+            sensor=site.sensor, frame_period_s=period, label_time_s=period / 2,
             num_pulses=caster.pulses, num_points=len(points), people=records)
         if length > 1:
             metadata.update(frame_index=k, time_s=round(k * period, 9),

@@ -64,41 +64,41 @@ def visible_x_range(mount: Mount, vfov_deg: float, scene: Scene,
 
 @functools.lru_cache(maxsize=None)
 def _behaviour_table(behaviours: tuple[tuple[str, float], ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Names (b,) and cumulative probabilities (b,) of a preset's behaviours (one uniform picks one, as
+    """Names (b,) and cumulative probabilities (b,) of a site's behaviours (one uniform picks one, as
     Generator.choice)."""
     names, weights = zip(*behaviours)
     cdf = np.cumsum(np.asarray(weights) / np.sum(weights))
     return np.asarray(names), cdf / cdf[-1]
 
 
-def _draw_bodies(rng: np.random.Generator, count: int, preset: Site,
+def _draw_bodies(rng: np.random.Generator, count: int, site: Site,
                  bank: BodyBank) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Body shapes (count,), their (count, materials) reflectivities and whether they wear a high-visibility vest
     (count,)."""
-    shapes = np.asarray(preset.shapes if preset.shapes is not None else range(bank.num_shapes))
+    shapes = np.asarray(site.shapes if site.shapes is not None else range(bank.num_shapes))
     shape = shapes[(len(shapes) * rng.random(count)).astype(np.intp)]  # uniform, as rng.integers
     reflectivity = _REFLECTIVITY_LOW + _REFLECTIVITY_WIDTH * rng.random((count, 4))
-    vest = rng.random(count) < preset.vest_probability
+    vest = rng.random(count) < site.vest_probability
     reflectivity[vest, 1] = VEST_REFLECTIVITY
     return shape, reflectivity, vest
 
 
-def sample_people(rng: np.random.Generator, preset: Site, scene: Scene, mount: Mount, hfov_deg: float,
+def sample_people(rng: np.random.Generator, site: Site, scene: Scene, mount: Mount, hfov_deg: float,
                   vfov_deg: float, frame_period_s: float, bank: BodyBank) -> list[Person]:
     """The people of one frame (possibly fewer than drawn when the scene is crowded)."""
-    count = int(rng.integers(preset.people[0], preset.people[1] + 1))
+    count = int(rng.integers(site.people[0], site.people[1] + 1))
     # candidate c: a leader (person 2 c) and a companion (person 2 c + 1) who comes along if it is a group
-    x_min, x_max = visible_x_range(mount, vfov_deg, scene, preset.walkable)
-    grouped = rng.random(MAX_TRIES) < preset.group_probability
+    x_min, x_max = visible_x_range(mount, vfov_deg, scene, site.walkable)
+    grouped = rng.random(MAX_TRIES) < site.group_probability
     x = rng.uniform(x_min, x_max, MAX_TRIES)
     y = rng.uniform(-1.0, 1.0, MAX_TRIES) * (x * math.tan(math.radians(hfov_deg / 2)) + 1.0)
     side = (len(scene.walk_headings) * rng.random(MAX_TRIES)).astype(np.intp)  # uniform, as rng.integers
     heading = np.asarray(scene.walk_headings)[side] + rng.normal(0.0, 0.2, MAX_TRIES)
-    names, behaviour_cdf = _behaviour_table(preset.behaviours)
+    names, behaviour_cdf = _behaviour_table(site.behaviours)
     behaviour = names[np.searchsorted(behaviour_cdf, rng.random(MAX_TRIES), side="right")]
     speed = np.clip(rng.normal(1.37, 0.15, MAX_TRIES), 0.9, 1.8)
     events = rng.random((MAX_TRIES, 5))
-    shape, reflectivity, vest = _draw_bodies(rng, 2 * MAX_TRIES, preset, bank)
+    shape, reflectivity, vest = _draw_bodies(rng, 2 * MAX_TRIES, site, bank)
     phase = rng.random(2 * MAX_TRIES)  # each person starts at their own point of the gait cycle
     anchor_xy, stride = np.stack([x, y], 1), bank.stride_length(shape)
     for tries in (FIRST_TRIES, MAX_TRIES):
@@ -109,7 +109,7 @@ def sample_people(rng: np.random.Generator, preset: Site, scene: Scene, mount: M
         samples[3] += phase[:2 * tries, None]
         frame = np.flatnonzero((leaders.times >= 0.0) & (leaders.times <= frame_period_s))
         paths = np.ascontiguousarray(samples[:2, :, frame[0]:frame[-1] + 1].transpose(0, 2, 1))
-        accepted = _accepted(paths, grouped, count, scene, preset.min_separation_m, preset.walkable)
+        accepted = _accepted(paths, grouped, count, scene, site.min_separation_m, site.walkable)
         if sum(map(len, accepted)) >= count:
             break
     trajectories = TrajectoryStack(leaders.times, samples)

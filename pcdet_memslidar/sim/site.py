@@ -303,7 +303,7 @@ def _background(file: _SiteFile, node, key: str) -> Background:
     if "recording" not in fields:
         raise file.error(node, key, "a background needs `recording`: a .bfpc file or a folder of frames")
     recording = Path(str(file.value(fields["recording"], f"{key}.recording"))).expanduser()
-    recording = recording if recording.is_absolute() else (file.path.resolve().parent / recording)
+    recording = recording if recording.is_absolute() else (file.path.resolve().parent / recording).resolve()
     if not recording.exists():
         raise file.error(fields["recording"], f"{key}.recording", f"{recording} does not exist; give the path of the "
                                                                    f"recording (relative to the site file)")

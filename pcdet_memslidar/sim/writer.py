@@ -1,6 +1,6 @@
 """Write a simulated domain as a KITTI-layout dataset: deterministic, resumable, sharded, parallel.
 
-    <out>/simulation.json                  domain preset, seed, package version and their fingerprint
+    <out>/simulation.json                  site, seed, package version and their fingerprint
     <out>/training/velodyne|label_2|calib|metadata/<id>   via pcdet_memslidar.io.layout.write_frame
     <out>/training/time_offset/<id>.bin    float32 (N,) time of each point [s] from the frame start, same order
                                            as the velodyne file
@@ -53,15 +53,15 @@ def frame_id(index: int) -> str:
     return f"{index:06d}"
 
 
-def domain_settings(preset: Site, seed: int, sequence_length: int | None = None) -> dict:
+def domain_settings(site: Site, seed: int, sequence_length: int | None = None) -> dict:
     """Everything that makes a domain's frames (or one sequence of sequence_length frames), with its sha256
     fingerprint under 'fingerprint'."""
-    settings = dict(domain=preset.to_dict(), pattern=dataclasses.asdict(get_pattern(preset.pattern)),
-                    sensor=dataclasses.asdict(get_sensor(preset.sensor)), seed=int(seed),
+    settings = dict(domain=site.to_dict(), pattern=dataclasses.asdict(get_pattern(site.pattern)),
+                    sensor=dataclasses.asdict(get_sensor(site.sensor)), seed=int(seed),
                     package_version=pcdet_memslidar.__version__,
                     body_bank_sha256=hashlib.sha256(BANK_PATH.read_bytes()).hexdigest())
-    if preset.background is not None:
-        settings["background_sha256"] = recording_sha256(preset.background)
+    if site.background is not None:
+        settings["background_sha256"] = recording_sha256(site.background)
     if sequence_length is not None:
         settings["sequence_length"] = int(sequence_length)
     text = json.dumps(settings, sort_keys=True, default=float)
@@ -98,8 +98,8 @@ def make_frame(site: Site, seed: int, index: int, threads: int = 0) -> Frame:
 
 def _write_one(args) -> int:
     """Make and write frame `index`; returns its number of points."""
-    preset, seed, index, root, fingerprint, threads = args
-    frame = make_frame(preset, seed, index, threads=threads)
+    site, seed, index, root, fingerprint, threads = args
+    frame = make_frame(site, seed, index, threads=threads)
     write_simulated_frame(KittiLayout(root), index, frame, fingerprint)
     return len(frame.points)
 
@@ -155,9 +155,9 @@ def _start_worker() -> None:
     exit_with_parent()
 
 
-def simulate_dataset(preset: Site, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
+def simulate_dataset(site: Site, frames: int, out: str | Path, seed: int = 0, workers: int = 1,
                      shard: tuple[int, int] = (0, 1), progress: bool = True) -> dict:
-    """Make frames 0..frames-1 of `preset` (those of `shard` (I, N): index % N == I) under `out`.
+    """Make frames 0..frames-1 of `site` (those of `shard` (I, N): index % N == I) under `out`.
 
     Frames already on disk whole are skipped; damaged ones (a truncated file, a missing label, ...) are made again.
     Returns dict(written, skipped, remade, points, complete, fingerprint): complete = all frames exist and
@@ -169,12 +169,12 @@ def simulate_dataset(preset: Site, frames: int, out: str | Path, seed: int = 0, 
     if seed < 0:
         raise ConfigError(f"--seed must be a non-negative integer, got {seed}")
     root = Path(out)
-    settings = domain_settings(preset, seed)
+    settings = domain_settings(site, seed)
     _check_settings(root, settings)
     layout = KittiLayout(root)
     complete, remade = _complete_frames(layout, frames, shard, settings["fingerprint"])
     indices = range(shard[0], frames, shard[1])
-    jobs = ((preset, seed, index, str(root), settings["fingerprint"], 1 if workers > 1 else 0)
+    jobs = ((site, seed, index, str(root), settings["fingerprint"], 1 if workers > 1 else 0)
             for index in indices if index not in complete)
     count = len(indices) - len(complete)
     keep_freed_memory()  # reuse the memory of each frame's numpy temporaries (see sim/memory.py)
@@ -184,7 +184,7 @@ def simulate_dataset(preset: Site, frames: int, out: str | Path, seed: int = 0, 
     else:  # frames in threads: their compiled loops, large numpy operations and file writes run outside
         # Python's interpreter lock (Open3D's cast_rays and the Python parts do not: 1.4x one core, not 2x)
         pool = ThreadPoolExecutor(FRAME_THREADS)
-    with pool, progress_bar(total=count, desc=f"simulate {preset.name}", unit="frame", enabled=progress) as bar:
+    with pool, progress_bar(total=count, desc=f"simulate {site.name}", unit="frame", enabled=progress) as bar:
         for points_of_frame in bounded_map(pool, _write_one, jobs, ahead=4 * max(workers, FRAME_THREADS)):
             points += points_of_frame
             bar.update()
@@ -196,26 +196,26 @@ def simulate_dataset(preset: Site, frames: int, out: str | Path, seed: int = 0, 
                 fingerprint=settings["fingerprint"])
 
 
-def simulate_sequence_dataset(preset: Site, length: int, out: str | Path, seed: int = 0,
+def simulate_sequence_dataset(site: Site, length: int, out: str | Path, seed: int = 0,
                               progress: bool = True) -> dict:
-    """One sequence of `length` frames of `preset` (sim.frame.simulate_sequence, sequence seed `seed`) as a
+    """One sequence of `length` frames of `site` (sim.frame.simulate_sequence, sequence seed `seed`) as a
     KITTI-layout dataset at `out`, written whole into a temporary folder that replaces `out` at the end (a
     sequence is made in order, so it is not resumed). Returns dict(written, points, people, fingerprint)."""
     if not 2 <= length <= MAX_FRAMES:
         raise ConfigError(f"--sequence must be between 2 and {MAX_FRAMES:,} frames, got {length}")
-    if preset.background is not None:
-        raise ConfigError(f"site '{preset.name}' composites people into a background recording, frame by frame: "
+    if site.background is not None:
+        raise ConfigError(f"site '{site.name}' composites people into a background recording, frame by frame: "
                           f"--sequence needs a site with a scene")
     if seed < 0:
         raise ConfigError(f"--seed must be a non-negative integer, got {seed}")
-    settings = domain_settings(preset, seed, sequence_length=length)
+    settings = domain_settings(site, seed, sequence_length=length)
     points, people = 0, 0
     keep_freed_memory()
-    bar = progress_bar(total=length, desc=f"simulate a {preset.name} sequence", unit="frame", enabled=progress)
+    bar = progress_bar(total=length, desc=f"simulate a {site.name} sequence", unit="frame", enabled=progress)
     with atomic_dir(out, SEQUENCE_COMMAND) as tmp, bar:
         write_text(tmp / SETTINGS_FILE, json.dumps(settings, sort_keys=True, indent=1) + "\n")
         layout = KittiLayout(tmp)
-        for index, frame in enumerate(simulate_sequence(preset, seed, length)):
+        for index, frame in enumerate(simulate_sequence(site, seed, length)):
             write_simulated_frame(layout, index, frame, settings["fingerprint"])
             points, people = points + len(frame.points), len(frame.metadata["people"])
             bar.update()
