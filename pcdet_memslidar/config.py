@@ -132,7 +132,13 @@ def _key_line(path: Path, keys: tuple[str, ...]) -> int | None:
 
 
 def _load_yaml_file(path: Path) -> dict:
-    mapping = parse_yaml(path.read_text(encoding="utf-8"), str(path))
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        line = path.read_bytes()[:error.start].count(b"\n") + 1
+        raise ConfigError(f"{path}:{line}: not UTF-8 text (byte {error.object[error.start]:#04x}); save the config "
+                          f"as UTF-8") from None
+    mapping = parse_yaml(text, str(path))
     if mapping is None:
         return {}
     if not isinstance(mapping, dict):

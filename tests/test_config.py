@@ -260,3 +260,11 @@ def test_profile_from_set_and_explicit_set_wins():
     paper = load_config(CFGS / "m3.yaml")
     assert (paper.PROFILE, paper.DATA_CONFIG.MIX.TOTAL, paper.OPTIMIZATION.NUM_EPOCHS, paper.OPTIMIZATION.LR) == \
         ("paper", 2100, 120, 1e-3)
+
+
+def test_a_config_that_is_not_utf8_is_refused_naming_its_line(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("CLASS_NAMES: ['Pedestrian']\n# Gr\u00f6\u00dfe\n".encode("latin-1"))
+    with pytest.raises(ConfigError) as error:
+        cfg_from_yaml_file(path)
+    assert str(error.value) == f"{path}:2: not UTF-8 text (byte 0xf6); save the config as UTF-8"

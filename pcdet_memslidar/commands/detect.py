@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 import torch
@@ -43,8 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.fmt not in FORMATS:
         raise ConfigError(f"--format {args.fmt!r}: use one of {', '.join(FORMATS)}")
-    if (args.batch_size is not None and args.batch_size < 1) or not args.frame_period > 0:
-        raise ConfigError("--batch_size must be >= 1 and --frame-period > 0 s")
+    if (args.batch_size is not None and args.batch_size < 1) or not 0 < args.frame_period < math.inf:
+        raise ConfigError("--batch_size must be >= 1 and --frame-period a finite number of seconds > 0")
     cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
     out = args.out or Path("output") / "detect" / args.src.name.split(".")[0]
     options = DetectOptions(src=args.src, out=out, fmt=args.fmt, mount=args.mount,

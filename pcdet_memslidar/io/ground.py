@@ -36,9 +36,10 @@ def parse_mount(text: str) -> Mount:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) not in (2, 3) or not np.isfinite(values).all() or values[0] <= 0:
+    if len(values) not in (2, 3) or not np.isfinite(values).all() or values[0] <= 0 or \
+            any(abs(angle) > 90 for angle in values[1:]):
         raise ValueError(f"--mount {text!r}: expected HEIGHT,TILT[,ROLL] as finite numbers in metres and degrees, "
-                         "height > 0, e.g. 4,16")
+                         "height > 0, tilt and roll within +-90, e.g. 4,16")
     return Mount(*values)
 
 

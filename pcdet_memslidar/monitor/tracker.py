@@ -13,6 +13,7 @@ optional `TRACKER` block of a detector config (TrackerConfig's fields in upper c
 from __future__ import annotations
 
 import difflib
+import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -38,6 +39,9 @@ class TrackerConfig:
         """A TrackerConfig from a config's TRACKER block ({MAX_DISTANCE: 1.0, ...}); ConfigError naming `where`
         and the close match for an unknown key or a value of the wrong kind."""
         names = {f.name.upper(): f for f in fields(cls)}
+        if block is not None and not isinstance(block, dict):
+            raise ConfigError(f"{where}: TRACKER is {block!r}: give a mapping of its keys, e.g. {{MAX_DISTANCE: 1.0}} "
+                              f"(known keys: {', '.join(names)})")
         values = {}
         for key, value in (block or {}).items():
             if key not in names:
@@ -45,9 +49,9 @@ class TrackerConfig:
                 hint = f"did you mean {close[0]}?" if close else f"known keys: {', '.join(names)}"
                 raise ConfigError(f"{where}: unknown key TRACKER.{key}; {hint}")
             kind = int if names[key].type == "int" else float
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0 or \
-                    (kind is int and value != int(value)):
-                raise ConfigError(f"{where}: TRACKER.{key} is {value!r}: give a non-negative {kind.__name__}")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
+                    value < 0 or (kind is int and value != int(value)):
+                raise ConfigError(f"{where}: TRACKER.{key} is {value!r}: give a finite, non-negative {kind.__name__}")
             values[names[key].name] = kind(value)
         return cls(**values)
 

@@ -23,9 +23,11 @@ import numpy as np
 import yaml
 
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.geometry.polygon import points_in_polygon, self_intersection
 
 LEVELS = ("warning", "protective")
 ZONE_KEYS = ("name", "level", "polygon", "z_range")
+MIN_ZONE_AREA_M2 = 1e-4  # a polygon enclosing less than this is a line or a point, no zone
 
 
 @dataclass(frozen=True)
@@ -45,59 +47,6 @@ class Zone:
         return inside
 
 
-def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """(N,) bool: points (N, 2) inside the simple polygon (K, 2) or on its border (even-odd rule)."""
-    points = np.asarray(points, np.float64).reshape(-1, 2)
-    a, b = polygon, np.roll(polygon, -1, axis=0)  # (K, 2) edge starts and ends
-    px, py = points[:, None, 0], points[:, None, 1]
-    (ax, ay), (bx, by) = a.T[:, None, :], b.T[:, None, :]  # (1, K) each
-    straddles = (ay > py) != (by > py)  # edges that cross the horizontal line through the point
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cross_x = ax + (py - ay) * (bx - ax) / (by - ay)
-    inside = (straddles & (px < cross_x)).sum(axis=1) % 2 == 1
-    return inside | _on_border(points, a, b)
-
-
-def _on_border(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) bool: points (N, 2) on one of the segments a[k] -> b[k] (exactly, up to float rounding of 1e-12 m)."""
-    p = points[:, None, :]
-    edge, rel = (b - a)[None], p - a[None]
-    cross = edge[..., 0] * rel[..., 1] - edge[..., 1] * rel[..., 0]
-    dot = (rel * edge).sum(axis=2)
-    return ((np.abs(cross) <= 1e-12 * np.maximum(1.0, (edge ** 2).sum(axis=2))) & (dot >= 0)
-            & (dot <= (edge ** 2).sum(axis=2))).any(axis=1)
-
-
-def _orientation(p, q, r) -> float:
-    return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
-
-
-def _segments_meet(p1, p2, q1, q2) -> bool:
-    """Whether the closed segments p1-p2 and q1-q2 share a point."""
-    d1, d2 = _orientation(q1, q2, p1), _orientation(q1, q2, p2)
-    d3, d4 = _orientation(p1, p2, q1), _orientation(p1, p2, q2)
-    if ((d1 > 0 > d2) or (d1 < 0 < d2)) and ((d3 > 0 > d4) or (d3 < 0 < d4)):
-        return True
-
-    def on(p, q, r):  # r on segment p-q, given collinear
-        return min(p[0], q[0]) <= r[0] <= max(p[0], q[0]) and min(p[1], q[1]) <= r[1] <= max(p[1], q[1])
-
-    return ((d1 == 0 and on(q1, q2, p1)) or (d2 == 0 and on(q1, q2, p2)) or (d3 == 0 and on(p1, p2, q1))
-            or (d4 == 0 and on(p1, p2, q2)))
-
-
-def self_intersection(polygon: np.ndarray) -> tuple[int, int] | None:
-    """(i, j): the first two non-adjacent edges (edge i runs from vertex i to i+1) that meet, or None."""
-    k = len(polygon)
-    for i in range(k):
-        for j in range(i + 2, k):
-            if i == 0 and j == k - 1:  # the closing edge touches edge 0 at vertex 0
-                continue
-            if _segments_meet(polygon[i], polygon[(i + 1) % k], polygon[j], polygon[(j + 1) % k]):
-                return i, j
-    return None
-
-
 def read_zones(path: str | Path) -> list[Zone]:
     """The zones of a zone file (module docstring); DataFormatError naming the file, the zone and the fix for
     anything malformed."""
@@ -110,6 +59,10 @@ def read_zones(path: str | Path) -> list[Zone]:
         raise DataFormatError(path, f"is not valid YAML: {error}") from None
     if not isinstance(document, dict) or not isinstance(document.get("zones"), list) or not document["zones"]:
         raise DataFormatError(path, "needs a top-level 'zones:' list with at least one zone (name, level, polygon)")
+    unknown = [key for key in document if key != "zones"]
+    if unknown:
+        raise DataFormatError(path, f"unknown top-level key {unknown[0]!r}: a zone file holds only 'zones:'; move it "
+                                    f"into a zone or remove it")
     zones = [_zone(path, index, entry) for index, entry in enumerate(document["zones"])]
     names = [zone.name for zone in zones]
     duplicate = next((name for name in names if names.count(name) > 1), None)
@@ -145,6 +98,10 @@ def _zone(path: Path, index: int, entry) -> Zone:
         raise DataFormatError(path, f"{where}: the polygon intersects itself (edge {i + 1}-{(i + 1) % k + 1} meets "
                                     f"edge {j + 1}-{(j + 1) % k + 1}, counting vertices from 1); list its corners "
                                     "in order around the zone")
+    x, y = polygon.T
+    if abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) / 2 < MIN_ZONE_AREA_M2:
+        raise DataFormatError(path, f"{where}: the polygon encloses no area (its corners lie on one line or repeat); "
+                                    "give at least 3 corners around the zone")
     z_range = entry.get("z_range")
     if z_range is not None:
         z = np.asarray(z_range, dtype=np.float64) if isinstance(z_range, list) else np.zeros(0)

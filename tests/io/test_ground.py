@@ -72,7 +72,7 @@ def test_no_ground_and_bad_mount_text():
         parse_mount("4")
 
 
-@pytest.mark.parametrize("text", ["nan,16", "4,inf", "4,16,nan"])
+@pytest.mark.parametrize("text", ["nan,16", "4,inf", "4,16,nan", "4,400", "4,16,-91"])
 def test_non_finite_mount_text(text):
     with pytest.raises(ValueError, match=rf"--mount '{text}': expected HEIGHT,TILT\[,ROLL\] as finite numbers"):
         parse_mount(text)

@@ -165,3 +165,13 @@ def test_batched_frames_give_the_detections_of_single_frames(tmp_path, bundled_a
         assert len(one["detections"]) == len(four["detections"])
         for a, b in zip(one["detections"], four["detections"]):
             np.testing.assert_allclose(a["box"] + [a["score"]], b["box"] + [b["score"]], rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("period", ["inf", "nan", "0"])
+def test_a_frame_period_that_is_not_a_finite_positive_number_is_refused_in_one_line(tmp_path, capsys, period):
+    with pytest.raises(SystemExit) as error:
+        cli.main(["detect", "--cfg", REPO_CFG, "--ckpt", "none.pth", "--src", str(tmp_path), "--frame-period", period,
+              "--out", str(tmp_path / "out")])
+    assert error.value.code == 2
+    assert capsys.readouterr().err.strip() == ("memslidar detect: error: --batch_size must be >= 1 and --frame-period "
+                                                "a finite number of seconds > 0")

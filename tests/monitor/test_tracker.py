@@ -100,7 +100,10 @@ def test_the_velocity_estimate_converges_to_the_walking_speed():
 @pytest.mark.parametrize("block, message", [({"MAX_DISTANCES": 1.0}, "did you mean MAX_DISTANCE"),
                                             ({"MIN_HITS": 1.5}, "non-negative int"),
                                             ({"MAX_DISTANCE": -1}, "non-negative float"),
-                                            ({"MIN_SCORE": True}, "non-negative float")])
+                                            ({"MIN_SCORE": True}, "non-negative float"),
+                                            ({"MIN_HITS": float("inf")}, "TRACKER.MIN_HITS is inf: give a finite"),
+                                            ({"MAX_DISTANCE": float("nan")}, "TRACKER.MAX_DISTANCE is nan: give a"),
+                                            ([1.0, 2], r"TRACKER is \[1.0, 2\]: give a mapping")])
 def test_tracker_block_errors_name_the_key(block, message):
     with pytest.raises(ConfigError, match=message) as error:
         TrackerConfig.from_block(block, "cfgs/m3.yaml")

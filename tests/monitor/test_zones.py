@@ -2,32 +2,13 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor, points_in_polygon, read_zones, self_intersection
+from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor, read_zones
 
 SQUARE = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
 
 
 def box(x: float, y: float, z_bottom: float = 0.0, height: float = 1.8) -> np.ndarray:
     return np.array([x, y, z_bottom + height / 2, 0.6, 0.5, height, 0.0])
-
-
-def test_points_in_polygon_with_the_border_inside():
-    points = np.array([[1, 1], [0, 0], [2, 1], [1, 2], [2.0000001, 1], [-1e-9, 1], [3, 3], [1, -0.5]])
-    assert points_in_polygon(points, SQUARE).tolist() == [True, True, True, True, False, False, False, False]
-
-
-def test_a_concave_zone():
-    u_shape = np.array([[0, 0], [3, 0], [3, 3], [2, 3], [2, 1], [1, 1], [1, 3], [0, 3]], dtype=float)
-    points = np.array([[0.5, 2.0], [1.5, 2.0], [2.5, 2.0], [1.5, 0.5], [1.5, 1.0]])
-    assert points_in_polygon(points, u_shape).tolist() == [True, False, True, True, True]
-
-
-def test_self_intersection_names_the_edges():
-    bow_tie = np.array([[0, 0], [2, 2], [2, 0], [0, 2]], dtype=float)
-    assert self_intersection(bow_tie) == (0, 2)
-    assert self_intersection(SQUARE) is None
-    touching = np.array([[0, 0], [4, 0], [4, 4], [2, 0], [0, 4]], dtype=float)  # vertex 4 lies on edge 1
-    assert self_intersection(touching) is not None
 
 
 def test_enter_and_leave_events_of_a_hand_made_track():
@@ -79,6 +60,10 @@ def test_read_zones(tmp_path):
      r"zone 1 \('a'\): the polygon intersects itself \(edge 1-2 meets edge 3-4"),
     ("zones:\n  - {name: a, level: danger, polygon: [[0, 0], [2, 0], [2, 2]]}", "level is 'danger'; use one of"),
     ("zones:\n  - {name: a, level: warning, polygon: [[0, 0], [2, 0]]}", "at least 3 finite"),
+    ("zones:\n  - {name: a, level: warning, polygon: [[0, 0], [1, 0], [2, 0]]}", "the polygon encloses no area"),
+    ("zone:\n  - {name: a, level: warning, polygon: [[0, 0], [1, 0], [2, 2]]}", "top-level 'zones:' list"),
+    ("zones:\n  - {name: a, level: warning, polygon: [[0, 0], [1, 0], [2, 2]]}\nlevels: [warning]",
+     "unknown top-level key 'levels'"),
     ("zones:\n  - {name: a, level: warning, polgon: [[0, 0], [2, 0], [2, 2]]}", "did you mean 'polygon'"),
     ("zones:\n  - {name: a, level: warning, polygon: [[0, 0], [2, 0], [2, 2]], z_range: [2, 1]}", "low < high"),
     ("zones:\n  - {name: a, level: warning, polygon: [[0, 0], [2, 0], [2, 2]]}\n"
