@@ -403,8 +403,11 @@ def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile
     grid it cannot take (pcdet_memslidar.grid.check_config_grid, with sizes that fit) and for optimisation values
     that cannot train (check_optimization)."""
     pairs = _set_pairs(set_cfgs)
+    asked = dict(pairs).get("PROFILE")
+    if profile and asked and str(asked) != str(profile):
+        raise ConfigError(f"--profile {profile} and --set PROFILE {asked} ask for two profiles: give one of them")
     config = cfg_from_yaml_file(cfg_file)
-    apply_profile(config, profile or dict(pairs).get("PROFILE"))
+    apply_profile(config, profile or asked)
     cfg_from_list([item for pair in pairs if pair[0] != "PROFILE" for item in pair], config)
     config.ROOT_DIR = cfg.ROOT_DIR
     config.LOCAL_RANK = config.get("LOCAL_RANK", 0)

@@ -268,3 +268,9 @@ def test_a_config_that_is_not_utf8_is_refused_naming_its_line(tmp_path):
     with pytest.raises(ConfigError) as error:
         cfg_from_yaml_file(path)
     assert str(error.value) == f"{path}:2: not UTF-8 text (byte 0xf6); save the config as UTF-8"
+
+
+def test_two_different_profiles_are_refused():
+    with pytest.raises(ConfigError, match="--profile smoke and --set PROFILE paper ask for two profiles"):
+        load_config(CFGS / "m3.yaml", ["PROFILE", "paper"], profile="smoke")
+    assert load_config(CFGS / "m3.yaml", ["PROFILE", "smoke"], profile="smoke").PROFILE == "smoke"

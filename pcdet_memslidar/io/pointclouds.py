@@ -218,6 +218,9 @@ def read_ply_fields(path: Path) -> dict[str, np.ndarray]:
         if words[0] == "format" and len(words) >= 2:
             encoding = words[1]
         elif words[0] == "element" and len(words) == 3:
+            if not words[2].isdigit():
+                raise DataFormatError(path, f"element {words[1]!r} has count {words[2]!r}: a PLY element count is a "
+                                            "whole number >= 0", line_no)
             elements.append([words[1], int(words[2]), []])
         elif words[0] == "property" and elements and len(words) == 3 and words[1] in _PLY_TYPES:
             elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
@@ -258,6 +261,9 @@ def read_npy_fields(path: Path) -> dict[str, np.ndarray]:
         raise DataFormatError(path, f"not a readable .npy array ({error})") from None
     if array.dtype.names:
         return {name: array[name].reshape(-1) for name in array.dtype.names if array[name].ndim == 1}
+    if array.dtype.kind not in "iuf":
+        raise DataFormatError(path, f"array of {array.dtype} values; a point cloud holds numbers (float or integer "
+                                    "x, y, z[, intensity[, time]])")
     if array.ndim != 2 or array.shape[1] not in (3, 4, 5):
         raise DataFormatError(path, f"array of shape {array.shape}; expected (N, 3|4|5) x, y, z[, intensity[, time]]")
     return dict(zip(("x", "y", "z", "intensity", "time"), array.T))

@@ -120,3 +120,20 @@ def test_nan_intensity_or_time_of_a_valid_point_names_the_file(tmp_path):
     np.save(tmp_path / "t.npy", np.array([[1, 2, 3, 4, 0.1], [1, 2, 3, 4, np.inf]]))
     with pytest.raises(DataFormatError, match=r"t\.npy: 1 point\(s\) .* infinite 'time', the first is point 1"):
         read_point_cloud(tmp_path / "t.npy")
+
+
+@pytest.mark.parametrize("count", ["-3", "many"])
+def test_a_ply_element_count_that_is_no_whole_number_is_refused_naming_its_line(tmp_path, count):
+    (tmp_path / "v.ply").write_text(f"ply\nformat ascii 1.0\nelement vertex {count}\nproperty float x\n"
+                                    "property float y\nproperty float z\nend_header\n1 2 3\n")
+    with pytest.raises(DataFormatError) as error:
+        read_point_cloud(tmp_path / "v.ply")
+    assert str(error.value) == (f"{tmp_path / 'v.ply'}:3: element 'vertex' has count '{count}': a PLY element count "
+                                f"is a whole number >= 0")
+
+
+@pytest.mark.parametrize("array", [np.ones((2, 4), dtype=bool), np.array([["1", "2", "3"]])])
+def test_an_npy_array_of_no_numbers_is_refused(tmp_path, array):
+    np.save(tmp_path / "n.npy", array)
+    with pytest.raises(DataFormatError, match=r"n\.npy: array of (bool|<U1) values; a point cloud holds numbers"):
+        read_point_cloud(tmp_path / "n.npy")
