@@ -17,6 +17,7 @@ from pcdet_memslidar.commands.options import add_openpcdet_arguments, add_precis
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.diagnose import extent_agreement, format_diagnosis, part_ablation
+from pcdet_memslidar.evaluation.report import json_safe
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.experiment import ap_line, scalars, test_split
@@ -56,8 +57,8 @@ def diagnose(dataset, result_dir: Path) -> str:
     result_dir/diagnosis.json, returned as text."""
     gt_annos, dt_annos = dataset.aligned_annos(pickle.loads((result_dir / "result.pkl").read_bytes()))
     ablation, agreement = part_ablation(gt_annos, dt_annos), extent_agreement(gt_annos, dt_annos)
-    write_text(result_dir / "diagnosis.json", json.dumps({"part_ablation": ablation, "extent_agreement": agreement},
-                                                         indent=1))
+    diagnosis = json_safe({"part_ablation": ablation, "extent_agreement": agreement})  # NaN (no labels): null
+    write_text(result_dir / "diagnosis.json", json.dumps(diagnosis, indent=1, allow_nan=False))
     return format_diagnosis(ablation, agreement)
 
 

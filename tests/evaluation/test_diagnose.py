@@ -1,7 +1,11 @@
 """evaluation.diagnose: which part of a box costs the AP, with exact values on hand-made boxes."""
+import json
+import pickle
+
 import numpy as np
 import pytest
 
+from pcdet_memslidar.commands.test import diagnose
 from pcdet_memslidar.evaluation.diagnose import PARTS, extent_agreement, format_diagnosis, part_ablation
 
 pytestmark = pytest.mark.filterwarnings("ignore:no ground-truth 'Pedestrian' boxes in the")  # bins left empty here
@@ -102,3 +106,18 @@ def test_low_scores_and_no_overlap_give_no_pairs():
     result = extent_agreement(*_frames(gt_boxes, gt_boxes, scores=[[0.1], [0.2]]))
     assert result == {"pairs": 0, "length": None, "width": None, "height": None, "heading": None}
     assert list(PARTS) == ["centre x, y", "z, height", "length, width", "heading", "all but the centre"]
+
+
+def test_a_split_without_labels_writes_strict_json(tmp_path):
+    _, dt = _frames([PERSON], [[PERSON]])
+    no_labels = [{"name": np.array([], dtype="<U10"), "boxes_lidar": np.zeros((0, 7))}]
+
+    class Unlabelled:
+        def aligned_annos(self, det_annos):
+            return no_labels, det_annos
+
+    (tmp_path / "result.pkl").write_bytes(pickle.dumps(dt))
+    diagnose(Unlabelled(), tmp_path)
+    text = (tmp_path / "diagnosis.json").read_text()
+    assert "NaN" not in text
+    assert json.loads(text)["part_ablation"]["as predicted"]["AP3D_R40"] is None
