@@ -338,11 +338,17 @@ def cfg_from_list(cfg_list: list[str] | None, config: EasyDict) -> None:
         node, parts = config, key.split(".")
         for depth, part in enumerate(parts):
             last = depth == len(parts) - 1
-            options = list(node) if isinstance(node, dict) else []
-            if last and isinstance(node, dict):
-                options = _known_keys(node, tuple(parts[:depth]))
+            parent = ".".join(parts[:depth]) or "the config"
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {key}: {parent} is a {type(node).__name__}, not a mapping: --set replaces it "
+                                  f"whole (--set {parent} VALUE)")
+            options = _known_keys(node, tuple(parts[:depth])) if last else list(node)
+            if not last and part not in node and ".".join(parts[:depth + 1]) in OPTIONAL_KEYS:
+                node[part] = EasyDict()  # an optional block the config leaves out (TRACKER): its reader checks it
+                options.append(part)
+            if last and parent in OPTIONAL_KEYS:
+                options.append(part)  # a key of an optional block: checked by the block's reader
             if part not in options:
-                parent = ".".join(parts[:depth]) or "the config"
                 raise ConfigError(f"--set {key}: unknown key '{part}' in {parent}{_close(part, options)}")
             if not last:
                 node = node[part]

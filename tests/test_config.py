@@ -274,3 +274,12 @@ def test_two_different_profiles_are_refused():
     with pytest.raises(ConfigError, match="--profile smoke and --set PROFILE paper ask for two profiles"):
         load_config(CFGS / "m3.yaml", ["PROFILE", "paper"], profile="smoke")
     assert load_config(CFGS / "m3.yaml", ["PROFILE", "smoke"], profile="smoke").PROFILE == "smoke"
+
+
+def test_set_reaches_into_an_optional_block_and_names_a_list_it_cannot_index():
+    config = load_config(CFGS / "m3.yaml", ["TRACKER.MAX_DISTANCE", "2"])
+    assert config.TRACKER == {"MAX_DISTANCE": 2}
+    with pytest.raises(ConfigError) as error:
+        load_config(CFGS / "m3.yaml", ["DATA_CONFIG.DATA_PROCESSOR.0.NAME", "x"])
+    assert str(error.value) == ("--set DATA_CONFIG.DATA_PROCESSOR.0.NAME: DATA_CONFIG.DATA_PROCESSOR is a list, not a "
+                                "mapping: --set replaces it whole (--set DATA_CONFIG.DATA_PROCESSOR VALUE)")

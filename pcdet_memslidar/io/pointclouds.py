@@ -272,6 +272,9 @@ def read_npy_fields(path: Path) -> dict[str, np.ndarray]:
 def read_bin_fields(path: Path) -> dict[str, np.ndarray]:
     """Columns of a KITTI .bin file: float32 x, y, z, intensity per point."""
     raw = path.read_bytes()
+    if raw.startswith(b"\x1f\x8b"):
+        raise DataFormatError(path, "a gzip stream, not float32 points: a Blickfeld recording renamed to .bin? Give it "
+                                    "its .bfpc name (or --format bfpc)")
     if len(raw) % 16:
         raise DataFormatError(path, f"{len(raw)} bytes is not a multiple of 16 (4 float32 per point): truncated "
                                     "or not a KITTI velodyne file")

@@ -137,3 +137,9 @@ def test_an_npy_array_of_no_numbers_is_refused(tmp_path, array):
     np.save(tmp_path / "n.npy", array)
     with pytest.raises(DataFormatError, match=r"n\.npy: array of (bool|<U1) values; a point cloud holds numbers"):
         read_point_cloud(tmp_path / "n.npy")
+
+
+def test_a_gzip_recording_named_bin_is_named_as_such(tmp_path):
+    (tmp_path / "r.bin").write_bytes(b"\x1f\x8b" + bytes(30))
+    with pytest.raises(DataFormatError, match=r"r\.bin: a gzip stream, not float32 points: a Blickfeld recording"):
+        read_point_cloud(tmp_path / "r.bin")
