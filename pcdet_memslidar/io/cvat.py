@@ -29,7 +29,7 @@ from xml.etree import ElementTree
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.kitti import CLASS_NAME
+from pcdet_memslidar.io.kitti import CLASS_NAME, read_text
 
 PERSON_NAMES = ("person", "pedestrian")  # accepted in any letter case
 OUTSIDE_TRUNCATION = (2, 99)  # KITTI raw poses marked out of / behind the image: not a labelled frame
@@ -125,7 +125,7 @@ def read_sly_export(root: str | Path) -> list[CvatFrame]:
         if not cloud.is_file():
             raise DataFormatError(ann_path, f"frame-list mismatch: its point cloud {cloud} is missing from the export")
         try:
-            ann = json.loads(ann_path.read_text(encoding="utf-8"))
+            ann = json.loads(read_text(ann_path))
             if not isinstance(ann, dict):
                 raise TypeError(f"the file holds a JSON {type(ann).__name__}, not an object with 'objects' and "
                                 "'figures'")
@@ -158,7 +158,7 @@ def _frame_names(root: Path) -> dict[int, str]:
         clouds = sorted((root / "velodyne_points" / "data").glob("*.pcd"), key=lambda p: natural_key(p.stem))
         return {int(p.stem) if p.stem.isdigit() else i: p.stem for i, p in enumerate(clouds)}
     names, first_line = {}, {}  # first_line: ("frame index", index) or ("name", name) -> the line listing it
-    for number, line in enumerate(listing.read_text(encoding="utf-8").splitlines(), start=1):
+    for number, line in enumerate(read_text(listing).splitlines(), start=1):
         if line.strip() and not line.startswith("#"):
             index, _, name = line.strip().partition(" ")
             name = name.strip()

@@ -40,7 +40,7 @@ KITTI_CLASSES = ("Car", "Van", "Truck", CLASS_NAME, "Person_sitting", "Cyclist",
 MIN_BOX_POINTS = 5  # a person with fewer points is not labelled (simulated or imported; kept in the metadata)
 
 
-def _read_text(path: Path) -> str:
+def read_text(path: Path) -> str:
     """The text of a UTF-8 file, without the byte-order mark some editors write first."""
     if not path.is_file():
         raise DataFormatError(path, "file not found")
@@ -151,7 +151,7 @@ def read_label(path: str | Path) -> KittiLabel:
     """Objects of a KITTI label_2 file (ground truth, or predictions with a 16th score column)."""
     path = Path(path)
     names, rows, with_score, first = [], [], None, None
-    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         name, values = _parse_label_line(path, number, line)
@@ -167,7 +167,7 @@ def read_label(path: str | Path) -> KittiLabel:
 
 def object_line(path: str | Path, name: str) -> int | None:
     """1-based line of the first object named `name` in the label file `path` (None if there is none)."""
-    lines = _read_text(Path(path)).splitlines()
+    lines = read_text(Path(path)).splitlines()
     return next((number for number, text in enumerate(lines, start=1) if text.split()[:1] == [name]), None)
 
 
@@ -251,7 +251,7 @@ def read_calib(path: str | Path) -> Calibration:
     """Calibration (P2, R0_rect, Tr_velo_to_cam) of a KITTI calib file."""
     path = Path(path)
     values = {}
-    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
@@ -297,7 +297,7 @@ def read_image_set(path: str | Path) -> list[str]:
     """Frame ids of an ImageSets file, one per line, in file order."""
     path = Path(path)
     ids, seen = [], {}
-    for number, line in enumerate(_read_text(path).splitlines(), start=1):
+    for number, line in enumerate(read_text(path).splitlines(), start=1):
         frame_id = line.strip()
         if not frame_id:
             continue

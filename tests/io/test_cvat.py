@@ -196,6 +196,13 @@ def test_kitti_raw_frame_list_with_a_repeated_name_or_index(tmp_path, listing, m
         cvat.read_kitti_raw_export(tmp_path)
 
 
+def test_a_kitti_raw_frame_list_that_is_not_utf8_is_named(tmp_path):
+    write_kitti_raw(tmp_path, ["a", "b"], [])
+    (tmp_path / "frame_list.txt").write_bytes("0 a\n1 b\u00e4\n".encode("latin-1"))
+    with pytest.raises(DataFormatError, match=r"frame_list\.txt: not a UTF-8 text file"):
+        cvat.read_kitti_raw_export(tmp_path)
+
+
 @pytest.mark.parametrize("first", ["1.7", "-1", "x"])
 def test_kitti_raw_first_frame_must_be_a_frame_index(tmp_path, first):
     write_kitti_raw(tmp_path, ["a", "b", "c"], [("person", 0.4, 0.6, 1.8, first, [(4.0, -1.0, 0.9, 0.0)])])
