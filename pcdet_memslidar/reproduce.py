@@ -83,7 +83,7 @@ def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: lis
 
 def frames_needed(cfgs: dict) -> dict[str, Source]:
     """{source name: the source with count = frames needed}: the largest count any model's mix takes of each
-    source, and the test source's TEST_SOURCE.COUNT (null: its domain preset's number of frames, or None for a
+    source, and the test source's TEST_SOURCE.COUNT (null: its site file's number of frames, or None for a
     domain that is not simulated: the frames its folder holds)."""
     needed: dict[str, Source] = {}
 

@@ -7,7 +7,7 @@ A source gives RATIO (of TOTAL) or COUNT (frames); a simulated source may name t
 (default: its NAME) and the simulation SEED (default 0) that `memslidar reproduce` makes its frames with. Each
 source takes its first `count` frames in sorted id order (so adding frames never changes which ones are taken),
 split 70/30 by io.layout.stable_split. DATA_CONFIG.TEST_SOURCE {NAME, PATH?, DOMAIN?, SEED?, COUNT} is read whole;
-its COUNT is how many frames `memslidar reproduce` simulates of it (null: the domain preset's number).
+its COUNT is how many frames `memslidar reproduce` simulates of it (null: the domain's site file's number).
 """
 from __future__ import annotations
 
@@ -119,7 +119,7 @@ def split_sources(data_cfg, split: str, data_path: Path) -> list[Source]:
 
 
 def make_frames_command(source: Source, frames: int | None) -> str:
-    """The command that creates `frames` frames (None: the domain preset's number) of `source` in its folder."""
+    """The command that creates `frames` frames (None: the domain's site file's number) of `source` in its folder."""
     importing = f"`memslidar import --format <format> --src <recordings> --out {source.root}`"
     if source.domain in BUNDLED_DOMAINS:
         count = "" if frames is None else f" --frames {frames}"

@@ -1,1 +1,2 @@
-"""MEMS-LiDAR simulator: scan pattern, sensor physics, people, scenes, ray casting, domain presets, writer."""
+"""MEMS-LiDAR simulator: scan pattern, sensor physics, people, scenes, sites, ray casting, compositing into real
+recordings, writer."""

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground
 from pcdet_memslidar.io.bfpc import read_bfpc
@@ -15,6 +16,7 @@ from pcdet_memslidar.sim.composite import (
     BackgroundFrame,
     composite_frame,
     composite_pulses,
+    estimate_background_mount,
     obstacle_cells,
     read_background,
 )
@@ -169,3 +171,18 @@ def test_a_folder_of_point_clouds_keeps_every_return_along_its_own_direction(tmp
         assert np.array_equal(np.sort(frame.points[frame.returned, 0]), np.sort(returns[:, 0]))
         assert len(frame.range) >= get_pattern("cube1_2020").pulses()[0].shape[0] - 1  # pattern pulses kept
         assert np.all(np.diff(frame.time_offset) >= 0)
+
+
+def test_mount_estimate_takes_the_recordings_floor(tmp_path):
+    path = tmp_path / "estimated.yaml"
+    path.write_text(f"""\
+name: room
+sensor: {{pattern: cube1_2020}}
+mount: estimate
+background: {{recording: {RECORDING}}}
+walkable: [[2, -3], [8, -3], [8, 1], [2, 1]]
+""")
+    mount = load_site(path, estimate_background_mount).viewpoints[0].mount
+    assert 1.5 < mount.height < 1.75 and abs(mount.tilt_deg) < 2.0  # the floor 1.6 m below, not the desks at 0.8 m
+    with pytest.raises(ConfigError, match=r"estimated\.yaml:3: mount: `estimate` is not available here"):
+        load_site(path)
