@@ -6,6 +6,7 @@ import math
 import torch
 from torch import nn
 
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.boxes import limit_period
 from pcdet_memslidar.models.anchor_generator import generate_anchors
 from pcdet_memslidar.models.box_coder import ResidualCoder
@@ -32,11 +33,11 @@ class AnchorHeadSingle(nn.Module):
         self.num_class = num_class
         self.predict_boxes_when_training = predict_boxes_when_training
         if model_cfg.get("USE_MULTIHEAD", False):
-            raise ValueError("DENSE_HEAD.USE_MULTIHEAD is not supported by AnchorHeadSingle: set it False")
+            raise ConfigError("DENSE_HEAD.USE_MULTIHEAD is not supported by AnchorHeadSingle: set it False")
         assigner_cfg = model_cfg.TARGET_ASSIGNER_CONFIG
         if assigner_cfg.get("NAME", "AxisAlignedTargetAssigner") != "AxisAlignedTargetAssigner" or \
                 assigner_cfg.get("BOX_CODER", "ResidualCoder") != "ResidualCoder":
-            raise ValueError("TARGET_ASSIGNER_CONFIG: only AxisAlignedTargetAssigner with ResidualCoder is supported")
+            raise ConfigError("TARGET_ASSIGNER_CONFIG: only AxisAlignedTargetAssigner with ResidualCoder is supported")
         self.box_coder = ResidualCoder(**assigner_cfg.get("BOX_CODER_CONFIG", {}))
         self.target_assigner = AxisAlignedTargetAssigner(assigner_cfg, class_names, self.box_coder)
         anchors, per_location = generate_anchors(model_cfg.ANCHOR_GENERATOR_CONFIG, grid_size, point_cloud_range)

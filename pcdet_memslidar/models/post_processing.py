@@ -75,7 +75,7 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
     pred_labels (K,) 1-based}, and the recall record when gt_boxes are in the batch. With `limits` (C, 2, 3)
     (size_limits), boxes of implausible size never reach NMS."""
     if post_process_cfg.NMS_CONFIG.get("MULTI_CLASSES_NMS", False):
-        raise ValueError("POST_PROCESSING.NMS_CONFIG.MULTI_CLASSES_NMS is not supported: set it False")
+        raise ConfigError("POST_PROCESSING.NMS_CONFIG.MULTI_CLASSES_NMS is not supported: set it False")
     pred_dicts, recall_dict = [], {}
     for index in range(batch_dict["batch_size"]):
         box_preds = batch_dict["batch_box_preds"][index]

@@ -5,6 +5,7 @@ import math
 
 import torch
 
+from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.boxes import limit_period
 from pcdet_memslidar.models.anchor_generator import generate_anchors
 from pcdet_memslidar.models.box_coder import ResidualCoder
@@ -33,12 +34,12 @@ class AxisAlignedTargetAssigner:
 
     def __init__(self, model_cfg, class_names, box_coder: ResidualCoder):
         if model_cfg.get("MATCH_HEIGHT", False):
-            raise ValueError("TARGET_ASSIGNER_CONFIG.MATCH_HEIGHT True is not supported: use False")
+            raise ConfigError("TARGET_ASSIGNER_CONFIG.MATCH_HEIGHT True is not supported: use False")
         pos_fraction = model_cfg.get("POS_FRACTION", -1.0)
         if pos_fraction is not None and pos_fraction >= 0:
-            raise ValueError("TARGET_ASSIGNER_CONFIG.POS_FRACTION >= 0 (sampling) is not supported: use -1.0")
+            raise ConfigError("TARGET_ASSIGNER_CONFIG.POS_FRACTION >= 0 (sampling) is not supported: use -1.0")
         if model_cfg.get("NORM_BY_NUM_EXAMPLES", False):
-            raise ValueError("TARGET_ASSIGNER_CONFIG.NORM_BY_NUM_EXAMPLES True is not supported: use False")
+            raise ConfigError("TARGET_ASSIGNER_CONFIG.NORM_BY_NUM_EXAMPLES True is not supported: use False")
         self.box_coder = box_coder
         self.class_names = list(class_names)
         self.anchor_class_names: list[str] = []

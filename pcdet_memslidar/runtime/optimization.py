@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import torch
 
+from pcdet_memslidar.errors import ConfigError
+
 BATCH_NORMS = (torch.nn.BatchNorm1d, torch.nn.BatchNorm2d, torch.nn.BatchNorm3d, torch.nn.SyncBatchNorm)
 
 
@@ -29,7 +31,7 @@ def build_optimizer(model: torch.nn.Module, optim_cfg) -> torch.optim.Optimizer:
     if name == "sgd":
         return torch.optim.SGD(params, lr=optim_cfg.LR, weight_decay=optim_cfg.WEIGHT_DECAY,
                                momentum=optim_cfg.MOMENTUM)
-    raise ValueError(f"OPTIMIZATION.OPTIMIZER '{name}' is unknown: use adam_onecycle, adam or sgd")
+    raise ConfigError(f"OPTIMIZATION.OPTIMIZER '{name}' is unknown: use adam_onecycle, adam or sgd")
 
 
 def build_scheduler(optimizer: torch.optim.Optimizer, total_iters_each_epoch: int, total_epochs: int,

@@ -1,0 +1,34 @@
+"""OpenPCDet settings the standalone SECOND does not support are refused with ConfigError (one line on the CLI),
+naming the key and the value to use."""
+from pathlib import Path
+
+import pytest
+import torch
+
+from pcdet_memslidar.config import load_config
+from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.models import build_network
+from pcdet_memslidar.runtime.optimization import build_optimizer
+
+CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+QUICK_RANGE, QUICK_VOXEL = [2.56, -23.2, 0.1, 40.96, 23.2, 2.5], [0.1, 0.1, 0.06]
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.MATCH_HEIGHT", "True", "MATCH_HEIGHT True is not supported: use False"),
+    ("MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.POS_FRACTION", "0.5", r"POS_FRACTION >= 0 \(sampling\) is not supported"),
+    ("MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.NORM_BY_NUM_EXAMPLES", "True", "NORM_BY_NUM_EXAMPLES True is not"),
+    ("MODEL.DENSE_HEAD.USE_MULTIHEAD", "True", "USE_MULTIHEAD is not supported by AnchorHeadSingle: set it False"),
+    ("MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.NAME", "ATSSTargetAssigner", "only AxisAlignedTargetAssigner"),
+])
+def test_unsupported_model_settings_are_config_errors(key, value, message):
+    cfg = load_config(CFGS / "m3.yaml", ["PROFILE", "quick", key, value])
+    with pytest.raises(ConfigError, match=message):
+        build_network(cfg.MODEL, 1, SyntheticPersonDataset(QUICK_RANGE, QUICK_VOXEL, num_frames=0))
+
+
+def test_an_unknown_optimizer_is_a_config_error():
+    cfg = load_config(CFGS / "m3.yaml", ["OPTIMIZATION.OPTIMIZER", "lion"])
+    with pytest.raises(ConfigError, match=r"OPTIMIZATION\.OPTIMIZER 'lion' is unknown: use adam_onecycle, adam or sgd"):
+        build_optimizer(torch.nn.Linear(2, 2), cfg.OPTIMIZATION)
