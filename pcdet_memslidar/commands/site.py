@@ -50,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
         mount = site.viewpoints[0].mount
         print(f"{args.site}: site '{site.name}', mount {dataclasses.asdict(mount)}")
         if site.walkable is not None:
-            print(f"walkable area x {site_extent(site)[0]:.2f}..{site_extent(site)[2]:.2f} m, "
-                  f"y {site_extent(site)[1]:.2f}..{site_extent(site)[3]:.2f} m (with a person's margin)")
+            x0, y0, x1, y1 = site_extent(site)
+            print(f"walkable area x {x0:.2f}..{x1:.2f} m, y {y0:.2f}..{y1:.2f} m (with a person's margin)")
         if site.background is not None:
             points = recording_points(site.background)
             walkable = None if site.walkable is None else np.array(site.walkable)

@@ -106,12 +106,18 @@ def _bfpc_frames(path: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
     return frames
 
 
-def _cloud_frames(folder: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
-    """Frames of point-cloud files. Each return is a pulse along its own direction, at the time of the pattern's
-    pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a return."""
+def cloud_files(folder: Path) -> list[Path]:
+    """The point-cloud frames (SUFFIXES) of a background folder in natural name order; DataFormatError if none."""
     files = sorted((p for p in folder.iterdir() if p.suffix.lower() in SUFFIXES), key=lambda p: natural_key(p.name))
     if not files:
         raise DataFormatError(folder, f"no {', '.join(SUFFIXES)} frames in this background folder")
+    return files
+
+
+def _cloud_frames(folder: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
+    """Frames of point-cloud files. Each return is a pulse along its own direction, at the time of the pattern's
+    pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a return."""
+    files = cloud_files(folder)
     directions, time_offset, _ = pattern.pulses()
     tree, spacing = cKDTree(directions), np.radians(pattern.angle_spacing_deg)
     frames = []
@@ -151,7 +157,7 @@ def read_background(background: Background, pattern: str | ScanPattern) -> tuple
 def recording_sha256(background: Background) -> str:
     """sha256 of the recording's bytes (its files in name order for a folder): part of a site's fingerprint."""
     path = Path(background.recording)
-    files = [path] if path.is_file() else sorted(p for p in path.iterdir() if p.suffix.lower() in SUFFIXES)
+    files = [path] if path.is_file() else cloud_files(path)
     digest = hashlib.sha256()
     for file in files:
         digest.update(file.name.encode() + file.read_bytes())
@@ -167,8 +173,7 @@ def recording_points(background: Background, frames: int = 5) -> np.ndarray:
         recording = read_bfpc(path).frames[first:first + frames]
         clouds = [frame.points[frame.first_returns()] for frame in recording]
     else:
-        files = sorted((p for p in path.iterdir() if p.suffix.lower() in SUFFIXES), key=lambda p: natural_key(p.name))
-        clouds = [read_point_cloud(file).points for file in files[first:first + frames]]
+        clouds = [read_point_cloud(file).points for file in cloud_files(path)[first:first + frames]]
     if not clouds:
         raise DataFormatError(path, "holds no frames to estimate the mount from")
     return np.concatenate(clouds)

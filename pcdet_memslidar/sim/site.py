@@ -131,7 +131,8 @@ class _SiteFile:
         line = f":{node.start_mark.line + 1}" if node is not None else ""
         return ConfigError(f"{self.path}{line}: {key}: {message}")
 
-    def value(self, node, key: str):
+    def value(self, node):
+        """The Python value of a YAML node."""
         return YamlLoader("").construct_document(node)
 
     def mapping(self, node, key: str, allowed: tuple[str, ...]) -> dict:
@@ -140,7 +141,7 @@ class _SiteFile:
             raise self.error(node, key, f"expected a mapping with keys {', '.join(allowed)}")
         found = {}
         for name_node, value in node.value:
-            name = str(self.value(name_node, key))
+            name = str(self.value(name_node))
             if name not in allowed:
                 close = difflib.get_close_matches(name, allowed, n=1, cutoff=0.5)
                 hint = f"did you mean '{close[0]}'?" if close else f"known keys: {', '.join(allowed)}"
@@ -150,7 +151,7 @@ class _SiteFile:
         return found
 
     def number(self, node, key: str, low: float = -np.inf, high: float = np.inf, integer: bool = False):
-        value = self.value(node, key)
+        value = self.value(node)
         kind = int if integer else (int, float)
         if isinstance(value, bool) or not isinstance(value, kind) or not low <= value <= high:
             what = "an integer" if integer else "a number"
@@ -164,7 +165,7 @@ class _SiteFile:
         return tuple(self.number(item, key, low, high, integer) for item in node.value)
 
     def choice(self, node, key: str, options) -> str:
-        value = self.value(node, key)
+        value = self.value(node)
         if value not in options:
             close = difflib.get_close_matches(str(value), list(options), n=1, cutoff=0.5)
             hint = f"did you mean '{close[0]}'?" if close else f"choose one of {', '.join(options)}"
@@ -241,10 +242,10 @@ def _primitive_value(file: _SiteFile, node, key: str):
     """A primitive's parameter: a material name or reflectivity, a flag, a number or a list of numbers."""
     parameter = key.rsplit(".", 1)[1]
     if parameter == "material":
-        value = file.value(node, key)
+        value = file.value(node)
         return file.choice(node, key, sorted(MATERIALS)) if isinstance(value, str) else file.number(node, key, 0, 1)
     if parameter == "solid":
-        value = file.value(node, key)
+        value = file.value(node)
         if not isinstance(value, bool):
             raise file.error(node, key, f"{value!r} is not true or false")
         return value
@@ -269,7 +270,7 @@ def _people(file: _SiteFile, node, key: str) -> dict:
         if not sum(weight for _, weight in behaviours) > 0:
             raise file.error(fields["behaviours"], f"{key}.behaviours", "the probabilities must not all be 0")
     shapes = None
-    if "shapes" in fields and file.value(fields["shapes"], f"{key}.shapes") != "all":
+    if "shapes" in fields and file.value(fields["shapes"]) != "all":
         items = fields["shapes"]
         if not isinstance(items, yaml.SequenceNode) or not items.value:
             raise file.error(items, f"{key}.shapes", "give `all` or a list of body-bank shape indices, e.g. [2, 3]")
@@ -277,7 +278,7 @@ def _people(file: _SiteFile, node, key: str) -> dict:
     phase_steps = fields.get("phase_steps")
     return dict(
         people=count, shapes=shapes, behaviours=behaviours,
-        phase_steps=None if phase_steps is None or file.value(phase_steps, "") is None
+        phase_steps=None if phase_steps is None or file.value(phase_steps) is None
         else file.number(phase_steps, f"{key}.phase_steps", 1, 64, integer=True),
         group_probability=file.number(fields["group_probability"], f"{key}.group_probability", 0, 1)
         if "group_probability" in fields else 0.1,
@@ -302,7 +303,7 @@ def _background(file: _SiteFile, node, key: str) -> Background:
     fields = file.mapping(node, key, _KEYS["background"])
     if "recording" not in fields:
         raise file.error(node, key, "a background needs `recording`: a .bfpc file or a folder of frames")
-    recording = Path(str(file.value(fields["recording"], f"{key}.recording"))).expanduser()
+    recording = Path(str(file.value(fields["recording"]))).expanduser()
     recording = recording if recording.is_absolute() else (file.path.resolve().parent / recording).resolve()
     if not recording.exists():
         raise file.error(fields["recording"], f"{key}.recording", f"{recording} does not exist; give the path of the "
@@ -329,7 +330,7 @@ def load_site(path: str | Path, estimate_mount=None) -> Site:
     top = file.mapping(file.root, "", _KEYS["top"])
     if "name" not in top:
         raise file.error(file.root, "name", "missing: give the site a name (letters, digits, _ and -)")
-    name = str(file.value(top["name"], "name"))
+    name = str(file.value(top["name"]))
     sensor = file.mapping(top["sensor"], "sensor", _KEYS["sensor"]) if "sensor" in top else {}
     pattern = _pattern(file, sensor["pattern"], "sensor.pattern") if "pattern" in sensor else "cube1_paper"
     physics = file.choice(sensor["physics"], "sensor.physics", sorted(SENSORS)) if "physics" in sensor else "calibrated"
@@ -355,7 +356,7 @@ def load_site(path: str | Path, estimate_mount=None) -> Site:
         if "mount" not in top:
             raise file.error(file.root, "mount", "missing: give {height: H, tilt_deg: T}"
                                                  + (" or `estimate`" if background else ""))
-        estimate = isinstance(top["mount"], yaml.ScalarNode) and file.value(top["mount"], "mount") == "estimate"
+        estimate = isinstance(top["mount"], yaml.ScalarNode) and file.value(top["mount"]) == "estimate"
         if estimate and background is None:
             raise file.error(top["mount"], "mount", "`estimate` needs a background recording to estimate it from")
         if estimate and estimate_mount is None:
