@@ -3,8 +3,9 @@
 The story, one stage per line (each stage's wall time goes into the report):
 1. split the background recording by time: its first frames are backgrounds for training, the last `holdout`
    share is held out (never seen in training);
-2. data: people composited into the training backgrounds (`train`), into the held-out backgrounds (`test`, another
-   seed), and the held-out frames as they are (`empty`: nobody in them), all in the site's ground frame;
+2. data: people composited into the training backgrounds (`train`), optionally frames of a simulated scene mixed in
+   (`sim`, a share of the training frames), people composited into the held-out backgrounds (`test`, another
+   seed), and the held-out frames as they are (`empty`: nobody in them), all in their ground frame;
 3. config: the shipped SECOND config with the site's grid (grid.fitted_range over the walkable area, for every
    profile) and these sources, written as <out>/site.yaml (it is also what `memslidar detect --cfg` takes);
 4. train and test it (reproduce.run_model: AP 3D at IoU 0.5 on the composited held-out frames);
@@ -26,7 +27,7 @@ from easydict import EasyDict
 
 from pcdet_memslidar.config import CONFIG_DIR, cfg_from_yaml_file, load_config
 from pcdet_memslidar.datasets.infos import create_domain_infos
-from pcdet_memslidar.datasets.mixing import Source
+from pcdet_memslidar.datasets.mixing import Source, source_counts
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_frames
 from pcdet_memslidar.evaluation.folders import read_label_folder
@@ -42,7 +43,7 @@ from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.train import final_checkpoint
 from pcdet_memslidar.sim.composite import estimate_background_mount, read_background
 from pcdet_memslidar.sim.pattern import get_pattern
-from pcdet_memslidar.sim.site import Background, Site, load_site
+from pcdet_memslidar.sim.site import BUNDLED_SITES, Background, Site, get_domain, load_site
 from pcdet_memslidar.sim.writer import simulate_dataset
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
@@ -62,12 +63,30 @@ TRACKER_MIN_SCORE = TrackerConfig().min_score  # detections below it are neither
 
 @dataclasses.dataclass(frozen=True)
 class SitePlan:
-    """What `site train` makes: frames per set and the split of the background recording."""
+    """What `site train` makes: frames per set, the split of the background recording, and the share of the
+    training frames that come from a simulated site (`sim_site`: a bundled domain or a site file) instead."""
 
     train_frames: int
     test_frames: int
     holdout: float
     seed: int
+    sim_share: float = 0.0
+    sim_site: str = "sim"
+
+    def mix(self) -> dict:
+        """DATA_CONFIG.MIX of the training frames: the composited `train` source and, with a sim_share, `sim`."""
+        if not 0 <= self.sim_share < 1:
+            raise ConfigError(f"--sim-share must be at least 0 and below 1 (the share of training frames from "
+                              f"--sim-site), got {self.sim_share}")
+        sources = [{"NAME": "train", "RATIO": 1.0 - self.sim_share}]
+        if self.sim_share:
+            sources.append({"NAME": "sim", "RATIO": self.sim_share})
+        return {"TOTAL": self.train_frames, "SOURCES": sources}
+
+
+def simulated_site(name_or_file: str) -> Site:
+    """A bundled domain by name ('sim' | 'real' | 'industrial'), else the site file at that path."""
+    return get_domain(name_or_file) if name_or_file in BUNDLED_SITES else load_site(name_or_file)
 
 
 def split_background(site: Site, holdout: float) -> tuple[Site, Site, tuple[int, int]]:
@@ -96,9 +115,9 @@ def site_extent(site: Site) -> tuple[float, float, float, float]:
     return float(low[0]), float(low[1]), float(high[0]), float(high[1])
 
 
-def site_config(site: Site, data_path: Path, train_frames: int) -> dict:
+def site_config(site: Site, data_path: Path, mix: dict) -> dict:
     """The site's detector config (YAML-ready): the shipped SECOND with the site's grid in the paper setting and in
-    every profile (grid.fitted_range), trained on the `train` source and tested on `test`."""
+    every profile (grid.fitted_range), trained on the sources of `mix` (SitePlan.mix) and tested on `test`."""
     base = cfg_from_yaml_file(MODEL_CONFIG)
     extent, profiles = site_extent(site), {}
     for name in ("paper", *base.PROFILES):
@@ -107,8 +126,7 @@ def site_config(site: Site, data_path: Path, train_frames: int) -> dict:
                      if step.NAME == "transform_points_to_voxels")
         z_range = Z_RANGES.get(name, cfg.DATA_CONFIG.POINT_CLOUD_RANGE[2::3])
         profiles[name] = fitted_range(extent, z_range, voxel[0], xy_cell_multiple(cfg.MODEL))
-    mix = {"TOTAL": train_frames, "SOURCES": [{"NAME": "train", "RATIO": 1.0}]}
-    overrides = {name: {"DATA_CONFIG": {"POINT_CLOUD_RANGE": profiles[name], "MIX": {"TOTAL": train_frames}}}
+    overrides = {name: {"DATA_CONFIG": {"POINT_CLOUD_RANGE": profiles[name], "MIX": {"TOTAL": mix["TOTAL"]}}}
                  for name in base.PROFILES}
     overrides["quick"]["OPTIMIZATION"] = SITE_QUICK_OPTIMIZATION
     return {
@@ -179,21 +197,23 @@ def train_site(site_file: Path, out: Path, plan: SitePlan, profile: str = "quick
     """Stages 1-6 of the module docstring; returns the results dict written to out/results.json."""
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
     site = load_site(site_file, estimate_background_mount)
+    mix = plan.mix()
+    sim = simulated_site(plan.sim_site) if plan.sim_share else None
     train, test, held = split_background(site, plan.holdout)  # 1.
     out.mkdir(parents=True, exist_ok=True)
     logger = create_logger(out / "site_log.txt")
     clock = StageClock(logger)
     data = out / "data"
     with clock("data"):  # 2.
-        for name, part, count, seed in (("train", train, plan.train_frames, plan.seed),
-                                        ("test", test, plan.test_frames, plan.seed + 1)):
-            simulate_dataset(part, count, data / name, seed=seed, workers=available_cores())
+        counts = {**source_counts(EasyDict(mix)), "test": plan.test_frames}
+        parts = {"train": (train, plan.seed), "sim": (sim, plan.seed + 2), "test": (test, plan.seed + 1)}
+        for name, count in counts.items():
+            simulate_dataset(parts[name][0], count, data / name, seed=parts[name][1], workers=available_cores())
+            create_domain_infos(Source(name, data / name, count))
         if not KittiLayout(data / "empty").frame_ids():
             write_empty_frames(site, held, data / "empty")
-        for name, count in (("train", plan.train_frames), ("test", plan.test_frames)):
-            create_domain_infos(Source(name, data / name, count))
     config_path = out / SITE_CONFIG  # 3.
-    write_text(config_path, yaml.safe_dump(site_config(site, data, plan.train_frames), sort_keys=False))
+    write_text(config_path, yaml.safe_dump(site_config(site, data, mix), sort_keys=False))
     cfg = load_config(config_path, set_cfgs, profile=profile)
     run_dir = out / "model"
     with clock("train and test"):  # 4.

@@ -29,7 +29,7 @@ def test_site_check_draws_the_floor_to_look_at(tmp_path, capsys):
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("site")
     assert main(["site", "train", "--site", str(SITE), "--profile", "smoke", "--frames", "12", "--test-frames", "6",
-                 "--out", str(out)]) == 0
+                 "--sim-share", "0.25", "--out", str(out)]) == 0
     return out
 
 
@@ -38,6 +38,7 @@ def test_site_train_splits_the_recording_by_time(trained):
         layout = KittiLayout(trained / "data" / name)
         return {json.loads(layout.metadata(i).read_text())["background"] for i in layout.frame_ids()}
 
+    assert len(KittiLayout(trained / "data" / "train").frame_ids()) == 9
     assert backgrounds("train") == {f"cube1_sample_2020.bfpc#{k}" for k in range(7)}
     assert backgrounds("test") == {f"cube1_sample_2020.bfpc#{k}" for k in range(7, 10)}
     results = json.loads((trained / "results.json").read_text())
@@ -70,6 +71,23 @@ def test_site_train_writes_a_config_that_fits_the_site_and_a_report(trained):
     assert "## False alarms on the held-out empty frames" in report and "memslidar detect --cfg" in report
     assert (trained / "site_detections.png").stat().st_size > 10_000
     assert 0 <= results["test"]["AP3D_R40"] <= 1
+
+
+def test_site_train_mixes_in_the_share_of_simulated_frames_asked_for(trained):
+    layout = KittiLayout(trained / "data" / "sim")
+    assert len(layout.frame_ids()) == 3
+    assert all("background" not in json.loads(layout.metadata(i).read_text()) for i in layout.frame_ids())
+    cfg = load_config(trained / "site.yaml", profile="smoke")
+    assert [(source.NAME, source.RATIO) for source in cfg.DATA_CONFIG.MIX.SOURCES] == [("train", 0.75), ("sim", 0.25)]
+
+
+@pytest.mark.parametrize("share", ["1", "-0.1"])
+def test_site_train_refuses_a_sim_share_outside_0_to_1_in_one_line(tmp_path, capsys, share):
+    with pytest.raises(SystemExit) as exit_:
+        main(["site", "train", "--site", str(SITE), "--sim-share", share, "--out", str(tmp_path)])
+    error = capsys.readouterr().err.strip()
+    assert exit_.value.code == 2 and error == (f"memslidar site: error: --sim-share must be at least 0 and below 1 "
+                                               f"(the share of training frames from --sim-site), got {float(share)}")
 
 
 def test_site_train_refuses_a_site_without_a_recording_in_one_line(tmp_path, capsys):

@@ -3,7 +3,8 @@ its empty recording with people composited into it (pcdet_memslidar.site_detecto
 
     memslidar site check --site FILE [--out DIR]
     memslidar site train --site FILE [--out DIR] [--profile quick] [--frames N] [--test-frames N] [--holdout F]
-                         [--seed S] [--compare REPRODUCE_OUT] [--set KEY VALUE ...]
+                         [--seed S] [--sim-share F --sim-site DOMAIN|FILE] [--compare REPRODUCE_OUT]
+                         [--set KEY VALUE ...]
 """
 from __future__ import annotations
 
@@ -37,6 +38,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--holdout", type=float, default=0.3,
                         help="share of the recording, at its end, held out from training (default %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the composited frames and the training")
+    parser.add_argument("--sim-share", type=float, default=0.0,
+                        help="share of the training frames simulated from --sim-site instead of composited "
+                             "(default %(default)s: none)")
+    parser.add_argument("--sim-site", default="sim",
+                        help="a bundled domain (sim, real, industrial) or a site file the --sim-share frames come "
+                             "from (default %(default)s)")
     parser.add_argument("--compare", type=Path, default=None,
                         help="a `memslidar reproduce` output folder: its seed-0 models' false alarms on the same "
                              "empty frames go into the report")
@@ -67,9 +74,11 @@ def run(args: argparse.Namespace) -> int:
     command = " ".join(["memslidar site train", f"--site {args.site}", f"--profile {args.profile}",
                         f"--frames {args.frames}", f"--test-frames {args.test_frames}", f"--holdout {args.holdout}",
                         f"--seed {args.seed}", *([f"--out {args.out}"] if args.out else []),
+                        *([f"--sim-share {args.sim_share} --sim-site {args.sim_site}"] if args.sim_share else []),
                         *([f"--compare {args.compare}"] if args.compare else []),
                         *(["--set", *args.set_cfgs] if args.set_cfgs else [])])
-    results = train_site(args.site, out.resolve(), SitePlan(args.frames, args.test_frames, args.holdout, args.seed),
+    results = train_site(args.site, out.resolve(), SitePlan(args.frames, args.test_frames, args.holdout, args.seed,
+                                                            args.sim_share, args.sim_site),
                          args.profile, args.compare, command, args.set_cfgs)
     for model, entry in results["false_alarms"].items():
         print(f"{model}: {entry['detections_per_frame']:.2f} detections / frame, {entry['confirmed_tracks']} "
