@@ -63,6 +63,7 @@ OPTIONAL_KEYS = (
     "DATA_CONFIG.INFO_PATH", "DATA_CONFIG.GET_ITEM_LIST", "DATA_CONFIG.FOV_POINTS_ONLY", "OPTIMIZATION.LOSS_SCALE_FP16",
     "PRETRAIN",  # pre-training then fine-tuning (runtime.pretrain; cfgs/m5.yaml)
     "TRACKER",  # tracker parameters of `memslidar detect` (monitor.tracker.TrackerConfig)
+    "HOOK",  # OpenPCDet's training hooks (runtime.hooks: DisableAugmentationHook)
 )
 
 

@@ -9,16 +9,27 @@ OpenPCDet has no plugin hook, so this launcher registers first and then runs the
   that names them, at any depth), applies the config's profile, sets CFG_FILE (as our load_config) and checks the
   voxel grid (pcdet_memslidar.grid.check_config_grid, the check of our config loader and model);
 - pcdet.config.cfg_from_list applies `--set PROFILE quick` (after the other --set values, which then win again) and
-  checks the grid again.
+  checks the grid again;
+- Detector3DTemplate.load_params_from_file / load_params_with_optimizer first read the checkpoint as our loader does
+  (runtime.checkpoint.read_checkpoint) and refuse one trained on another grid or profile, before OpenPCDet would
+  load the half of it that fits and evaluate anyway;
+- torch.load's weights_only mode (the default from torch 2.6) is allowed the numpy scalars that OpenPCDet's one-cycle
+  optimizer state holds, so stock OpenPCDet reloads its own checkpoints too.
+Our errors (ConfigError, DataFormatError) come out as one line and exit status 2.
 """
 from __future__ import annotations
 
+import functools
 import runpy
 import sys
 from pathlib import Path
 
+import torch
+
 from .config import apply_profile, cfg_from_yaml_file
+from .errors import ConfigError, DataFormatError
 from .grid import check_config_grid
+from .runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint
 
 USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
 
@@ -39,6 +50,13 @@ def register() -> None:
     if not getattr(pcdet.config.cfg_from_list, "memslidar", False):
         pcdet.config.cfg_from_yaml_file = _cfg_from_yaml_file
         pcdet.config.cfg_from_list = _profile_aware_cfg_from_list(pcdet.config.cfg_from_list)
+    torch.serialization.add_safe_globals(numpy_scalar_globals())
+    from pcdet.models.detectors.detector3d_template import Detector3DTemplate
+
+    for name in ("load_params_from_file", "load_params_with_optimizer"):
+        method = getattr(Detector3DTemplate, name)
+        if not getattr(method, "memslidar", False):
+            setattr(Detector3DTemplate, name, _grid_checked(method))
 
 
 def _cfg_from_yaml_file(cfg_file, config):
@@ -65,6 +83,21 @@ def _profile_aware_cfg_from_list(original):
     return cfg_from_list
 
 
+def _grid_checked(load):
+    """Wrap a Detector3DTemplate loader: read `filename` safely and refuse weights trained on another voxel grid
+    (the checkpoint's record against the model's dataset) before OpenPCDet loads it."""
+
+    @functools.wraps(load)
+    def checked(self, filename, *args, **kwargs):
+        mismatch = grid_mismatch(read_checkpoint(filename), self)
+        if mismatch:
+            raise DataFormatError(filename, mismatch)
+        return load(self, filename, *args, **kwargs)
+
+    checked.memslidar = True
+    return checked
+
+
 def main(argv: list[str] | None = None) -> int:
     """Register, then run an OpenPCDet script with the remaining arguments as its command line."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -78,7 +111,11 @@ def main(argv: list[str] | None = None) -> int:
     register()
     sys.argv = [str(script), *argv[1:]]
     sys.path.insert(0, str(script.parent))  # the script's own folder, as `python script.py` would (train_utils/ ...)
-    runpy.run_path(str(script), run_name="__main__")
+    try:
+        runpy.run_path(str(script), run_name="__main__")
+    except (ConfigError, DataFormatError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     return 0
 
 

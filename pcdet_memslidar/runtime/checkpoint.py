@@ -28,7 +28,7 @@ _ZIP_MAGIC = b"PK\x03\x04"  # torch.save's default format
 _PICKLE_PROTO = 0x80  # the legacy format (OpenPCDet's _use_new_zipfile_serialization=False) is a bare pickle
 
 
-def _numpy_scalar_globals() -> list:
+def numpy_scalar_globals() -> list:
     """What OpenPCDet's optimizer state needs beyond torch's safe defaults: numpy scalars (its one-cycle schedule
     writes lr and beta1 as numpy.float64) under numpy 2.x's and 1.x's module names, and the dtype they carry."""
     try:
@@ -153,7 +153,10 @@ def read_checkpoint(filename: str | Path) -> dict:
         raise DataFormatError(path, f"is not a PyTorch checkpoint (it starts with {head!r}, neither torch.save's zip "
                                     "nor its legacy pickle format): pass a .pth file written by training")
     try:
-        with torch.serialization.safe_globals(_numpy_scalar_globals()):
+        # only those not registered already: leaving the context removes what it added (the OpenPCDet launcher
+        # registers them for the whole process)
+        registered = torch.serialization.get_safe_globals()
+        with torch.serialization.safe_globals([item for item in numpy_scalar_globals() if item not in registered]):
             checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch.load fails with many error types
         raise _load_failure(path, error) from None

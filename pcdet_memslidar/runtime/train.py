@@ -16,6 +16,7 @@ from pcdet_memslidar.datasets import build_dataloader
 from pcdet_memslidar.runtime.common import set_random_seed
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch, split_config
 from pcdet_memslidar.runtime.experiment import Process, local_process
+from pcdet_memslidar.runtime.hooks import DisableAugmentationHook
 from pcdet_memslidar.runtime.pretrain import PRETRAIN_DIR, split_stages
 from pcdet_memslidar.runtime.train_loop import prepare_training, train_model
 
@@ -60,6 +61,7 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     if seed is not None:
         set_random_seed(seed + process.rank)
     epochs, batch_size = cfg.OPTIMIZATION.NUM_EPOCHS, cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU
+    hook = DisableAugmentationHook.from_cfg(cfg)  # checked before any work
     train_set, train_loader, sampler = build_dataloader(
         cfg.DATA_CONFIG, cfg.CLASS_NAMES, batch_size, process.dist, workers=workers, seed=seed, logger=logger,
         training=True, merge_all_iters_to_one_epoch=merge_all_iters_to_one_epoch, total_epochs=epochs)
@@ -92,10 +94,14 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
             on_epoch(epoch, mean_loss, result, seconds)
         clock["start"] = time.perf_counter()  # validation time is not training time
 
+    def on_epoch_start(epoch: int) -> None:
+        if hook is not None:
+            hook.before_epoch(train_set.data_augmentor, cfg.DATA_CONFIG.DATA_AUGMENTOR, epoch, epochs, logger)
+
     train_model(model, optimizer, train_loader, lr_scheduler, cfg.OPTIMIZATION, start_epoch, epochs, it,
                 process.rank, tb_log, ckpt_dir, process.device, train_sampler=sampler,
-                merge_all_iters_to_one_epoch=merge_all_iters_to_one_epoch, logger=logger, on_epoch_end=on_epoch_end,
-                **loop_options)
+                merge_all_iters_to_one_epoch=merge_all_iters_to_one_epoch, logger=logger,
+                on_epoch_start=on_epoch_start, on_epoch_end=on_epoch_end, **loop_options)
     if process.dist:
         torch.distributed.barrier()  # rank 0 has written the last checkpoint
     return final

@@ -87,10 +87,11 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                 ckpt_save_interval: int = 1, max_ckpt_save_num: int = 50, merge_all_iters_to_one_epoch: bool = False,
                 logger: logging.Logger | None = None, logger_iter_interval: int = 50,
                 ckpt_save_time_interval: float = 300, use_tqdm_to_record: bool = False,
-                use_amp: bool = False, on_epoch_end=None) -> int:
+                use_amp: bool = False, on_epoch_start=None, on_epoch_end=None) -> int:
     """Train from `start_epoch` to `total_epochs`; rank 0 writes checkpoints and logs. Returns the iteration
     count reached. With merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts.
-    on_epoch_end(epoch, mean_loss) runs on every rank after each epoch's checkpoint (epoch counts from 1)."""
+    on_epoch_start(epoch) runs on every rank before each epoch's first batch (epoch counts from 0, OpenPCDet's
+    cur_epoch); on_epoch_end(epoch, mean_loss) after each epoch's checkpoint (epoch counts from 1)."""
     logger = logger or logging.getLogger(__name__)
     ckpt_save_dir = Path(ckpt_save_dir)
     accumulated_iter = start_iter
@@ -105,6 +106,8 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
     show_bar = rank == 0 and not use_tqdm_to_record
     last_save = time.time()
     for epoch in progress_bar(range(start_epoch, total_epochs), enabled=show_bar, desc="epochs"):
+        if on_epoch_start is not None:
+            on_epoch_start(epoch)
         epoch_start = time.time()
         epoch_loss = 0.0
         with progress_bar(total=iters_per_epoch, enabled=show_bar, desc="train", leave=False) as bar:

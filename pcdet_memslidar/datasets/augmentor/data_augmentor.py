@@ -13,16 +13,30 @@ class DataAugmentor:
     """Applies the configured augmentations in order; `databases` feeds gt_sampling, per source name."""
 
     def __init__(self, augmentor_cfg, class_names: list[str], databases: dict[str, GtDatabase] | None = None):
-        disabled = set(augmentor_cfg.get("DISABLE_AUG_LIST", []))
-        self.queue = []
-        for config in augmentor_cfg.AUG_CONFIG_LIST:
-            if config.NAME in disabled:
+        self.class_names, self.databases, self.disabled = class_names, databases or {}, set()
+        self.disable_augmentation(augmentor_cfg)
+
+    def disable_augmentation(self, augmentor_cfg) -> None:
+        """Rebuild the queue from augmentor_cfg (DATA_AUGMENTOR, or its AUG_CONFIG_LIST) without the steps in its
+        DISABLE_AUG_LIST or disabled before: what OpenPCDet's DisableAugmentationHook calls (runtime.hooks). Unlike
+        OpenPCDet's, a step once disabled stays off when a later list omits it."""
+        configs = augmentor_cfg if isinstance(augmentor_cfg, list) else augmentor_cfg.AUG_CONFIG_LIST
+        if not isinstance(augmentor_cfg, list):
+            self.disabled |= set(augmentor_cfg.get("DISABLE_AUG_LIST") or [])
+        self.queue, self.names = [], []
+        for config in configs:
+            if config.NAME in self.disabled:
                 continue
             build = getattr(self, f"_build_{config.NAME}", None)
             if build is None:
-                known = sorted(name[len("_build_"):] for name in dir(self) if name.startswith("_build_"))
-                raise ConfigError(f"DATA_AUGMENTOR: unknown augmentation {config.NAME!r}; known: {known}")
-            self.queue.append(build(config, class_names, databases or {}))
+                raise ConfigError(f"DATA_AUGMENTOR: unknown augmentation {config.NAME!r}; known: {self.known()}")
+            self.queue.append(build(config, self.class_names, self.databases))
+            self.names.append(config.NAME)
+
+    @classmethod
+    def known(cls) -> list[str]:
+        """The augmentation NAMEs this augmentor builds."""
+        return sorted(name[len("_build_"):] for name in dir(cls) if name.startswith("_build_"))
 
     def forward(self, data_dict: dict, rng: np.random.Generator) -> dict:
         """data_dict with points (N, 3+C), gt_boxes (M, 7), gt_names (M,), gt_boxes_mask (M,) bool -> augmented.
