@@ -344,11 +344,13 @@ def cfg_from_list(cfg_list: list[str] | None, config: EasyDict) -> None:
                 raise ConfigError(f"--set {key}: {parent} is a {type(node).__name__}, not a mapping: --set replaces it "
                                   f"whole (--set {parent} VALUE)")
             options = _known_keys(node, tuple(parts[:depth])) if last else list(node)
-            if not last and part not in node and ".".join(parts[:depth + 1]) in OPTIONAL_KEYS:
-                node[part] = EasyDict()  # an optional block the config leaves out (TRACKER): its reader checks it
+            # inside an optional block (TRACKER, HOOK) any key goes: the block's reader checks it
+            inside = any(".".join(parts[:end]) in OPTIONAL_KEYS for end in range(1, depth + 1))
+            if not last and part not in node and (inside or ".".join(parts[:depth + 1]) in OPTIONAL_KEYS):
+                node[part] = EasyDict()  # an optional block (or a mapping in one) that the config leaves out
                 options.append(part)
-            if last and parent in OPTIONAL_KEYS:
-                options.append(part)  # a key of an optional block: checked by the block's reader
+            if last and inside:
+                options.append(part)
             if part not in options:
                 raise ConfigError(f"--set {key}: unknown key '{part}' in {parent}{_close(part, options)}")
             if not last:

@@ -279,6 +279,11 @@ def test_two_different_profiles_are_refused():
 def test_set_reaches_into_an_optional_block_and_names_a_list_it_cannot_index():
     config = load_config(CFGS / "m3.yaml", ["TRACKER.MAX_DISTANCE", "2"])
     assert config.TRACKER == {"MAX_DISTANCE": 2}
+    hook = "HOOK.DisableAugmentationHook."  # mappings inside an optional block are made as --set reaches them
+    config = load_config(CFGS / "m3.yaml", [hook + "DISABLE_AUG_LIST", "[gt_sampling]", hook + "NUM_LAST_EPOCHS", "1"])
+    assert config.HOOK == {"DisableAugmentationHook": {"DISABLE_AUG_LIST": ["gt_sampling"], "NUM_LAST_EPOCHS": 1}}
+    with pytest.raises(ConfigError, match="unknown key 'HOOKS'"):
+        load_config(CFGS / "m3.yaml", ["HOOKS.DisableAugmentationHook.NUM_LAST_EPOCHS", "1"])
     with pytest.raises(ConfigError) as error:
         load_config(CFGS / "m3.yaml", ["DATA_CONFIG.DATA_PROCESSOR.0.NAME", "x"])
     assert str(error.value) == ("--set DATA_CONFIG.DATA_PROCESSOR.0.NAME: DATA_CONFIG.DATA_PROCESSOR is a list, not a "
