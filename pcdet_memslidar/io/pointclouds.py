@@ -21,6 +21,9 @@ SUFFIXES = (".pcd", ".ply", ".npy", ".bin")
 # field names that other tools use for intensity and per-point time, in order of preference
 INTENSITY_FIELDS = ("intensity", "reflectivity", "i", "scalar_intensity", "remission")
 TIME_FIELDS = ("time", "time_offset", "timestamp", "t", "offset_time")
+# No LiDAR return lies this far [m]: a coordinate beyond it is a damaged file (a PCD binary_compressed body has no
+# checksum, so a flipped byte in it decodes to a wrong value) or one not in metres.
+MAX_COORDINATE_M = 1000.0
 
 
 @dataclass
@@ -61,6 +64,12 @@ def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path) -> Loaded
         if len(bad):
             raise DataFormatError(path, f"{len(bad)} point(s) with valid x, y, z have a NaN or infinite {name!r}, "
                                         f"the first is point {bad[0]} (counting from 0); fix or drop them")
+    far = np.flatnonzero(valid & (np.abs(xyz) > MAX_COORDINATE_M).any(axis=1))
+    if len(far):
+        raise DataFormatError(path, f"{len(far)} point(s) lie beyond {MAX_COORDINATE_M:g} m, the first is point "
+                                    f"{far[0]} (counting from 0) at {np.round(xyz[far[0]], 1).tolist()} m: no LiDAR "
+                                    "return is that far, so the file is damaged (copy it again from the recorder) or "
+                                    "not in metres (convert it)")
     points = np.concatenate([xyz[valid].astype(np.float32), intensity[valid, None]], axis=1)
     time = time[valid] if time_name else None
     return LoadedCloud(points=points, time=time, dropped=int((~valid).sum()), has_intensity=intensity_name is not None)

@@ -66,6 +66,32 @@ def test_truncated_files_raise_naming_the_file(tmp_path, cloud, name, kwargs, me
     assert name in str(error.value)
 
 
+def test_a_flipped_bit_in_lzf_literals_is_refused_as_a_point_beyond_any_lidar_range(tmp_path):
+    """LZF carries no checksum: a flipped bit in a literal run decodes without error to another value. One in a
+    float's exponent puts the point out of any LiDAR's range, and the reader refuses the file."""
+    import lzf
+
+    xyz = np.random.default_rng(3).uniform([2, -5, -1], [20, 5, 2], (20, 3)).astype("<f4")
+    xyz[:, 2] = -1.5  # a floor: LZF compresses this column (it returns None for a body it cannot shrink)
+    raw = xyz.T.tobytes()  # binary_compressed: column-major
+    compressed = bytearray(lzf.compress(raw))
+    header = (b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 20\nHEIGHT 1\nPOINTS 20\n"
+              b"DATA binary_compressed\n" + np.array([len(compressed), len(raw)], "<u4").tobytes())
+    path = tmp_path / "flipped.pcd"
+    path.write_bytes(header + bytes(compressed))
+    np.testing.assert_array_equal(read_point_cloud(path).points[:, :3], xyz)
+    at = bytes(compressed).find(xyz[7, 0].tobytes())
+    assert at > 0 and not compressed[at + 3] & 0x08  # x of point 7 is a literal; exponent bit 4 is clear
+    compressed[at + 3] ^= 0x08  # exponent + 16: x times 65536
+    path.write_bytes(header + bytes(compressed))
+    far = [round(float(xyz[7, 0]) * 65536, 1), round(float(xyz[7, 1]), 1), round(float(xyz[7, 2]), 1)]
+    with pytest.raises(DataFormatError) as error:
+        read_point_cloud(path)
+    assert str(error.value) == (f"{path}: 1 point(s) lie beyond 1000 m, the first is point 7 (counting from 0) at "
+                                f"{far} m: no LiDAR return is that far, so the file is damaged (copy it again from "
+                                "the recorder) or not in metres (convert it)")
+
+
 def test_corrupt_lzf_and_bad_ascii_row(tmp_path, cloud):
     _write_open3d(tmp_path / "c.pcd", cloud, write_ascii=False, compressed=True)
     data = bytearray((tmp_path / "c.pcd").read_bytes())
