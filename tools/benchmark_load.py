@@ -1,0 +1,119 @@
+"""Speed under load: the quick model's inference (ms/frame) and training step (ms) alone on the machine and with
+busy processes beside it, for each OpenMP wait policy, measured in one run.
+
+    python tools/benchmark_load.py                       # 3 busy processes, quick profile of cfgs/m3.yaml
+    python tools/benchmark_load.py --busy 1 3 --frames 20
+
+An edge box shares its cores. OpenMP threads (torch's and numba's share one libgomp pool) wait for each other at
+the end of every parallel region; libgomp's default lets a waiting thread spin, which on a busy machine takes the
+core from the very thread it waits for. Each setting runs in a fresh process (the policy is read when libgomp
+loads), first idle, then with the busy processes (pure-Python loops) started by this script; ratios are loaded /
+idle of the same setting. Prints a Markdown table; JSON to output/benchmark/load_benchmark.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.cores import available_cores
+
+SETTINGS = {  # name -> environment of the measured process (a variable set to None is removed)
+    "libgomp default (spin, then sleep)": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None},
+    "OMP_WAIT_POLICY=ACTIVE (spin)": {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": None},
+    "OMP_WAIT_POLICY=PASSIVE (sleep)": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None},
+}
+BUSY = "while True:\n    pass\n"
+
+
+def measure(args) -> dict:
+    """In this process: {'infer_ms', 'train_step_ms', 'policy'} of the config's model (random weights, seed 0)."""
+    import torch
+    from benchmark_model import frames_for, time_inference, time_train_step
+
+    from pcdet_memslidar.config import load_config
+    from pcdet_memslidar.models import build_network
+    from pcdet_memslidar.runtime.common import get_device, set_random_seed
+
+    torch.set_num_threads(args.threads)
+    cfg = load_config(args.cfg, profile=args.profile)
+    device = get_device()
+    dataset, _ = frames_for(cfg, training=False, count=args.frames + args.warmup)
+    set_random_seed(0)
+    model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), dataset).to(device)
+    infer_ms, _ = time_inference(model, dataset, args.frames, args.warmup, device)
+    train_set, _ = frames_for(cfg, training=True, count=2 * args.steps + 2)
+    model.train()
+    step_ms = time_train_step(model, train_set, cfg, 2, args.steps, device)
+    return {"infer_ms": infer_ms, "train_step_ms": step_ms, "policy": os.environ.get("OMP_WAIT_POLICY", "default")}
+
+
+def run_setting(env_changes: dict, args) -> dict:
+    """measure() in a fresh process with `env_changes` applied to this environment."""
+    env = {**os.environ}
+    for key, value in env_changes.items():
+        env.pop(key, None) if value is None else env.__setitem__(key, value)
+    command = [sys.executable, __file__, "--child", "--cfg", args.cfg, "--profile", args.profile, "--threads",
+               str(args.threads), "--frames", str(args.frames), "--warmup", str(args.warmup), "--steps",
+               str(args.steps)]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise RuntimeError(f"measuring failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cfg", default="cfgs/m3.yaml")
+    parser.add_argument("--profile", default="quick")
+    parser.add_argument("--busy", type=int, nargs="+", default=[3], help="busy processes beside it (default 3)")
+    parser.add_argument("--threads", type=int, default=available_cores(),
+                        help="torch threads (default: the free cores)")
+    parser.add_argument("--frames", type=int, default=20, help="timed frames (median)")
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--steps", type=int, default=6, help="timed training steps of 2 frames (median)")
+    parser.add_argument("--output", default="output/benchmark/load_benchmark.json")
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(measure(args)))
+        return 0
+    rows = []
+    for name, env_changes in SETTINGS.items():
+        idle = run_setting(env_changes, args)
+        row = {"setting": name, "idle": idle}
+        for busy in args.busy:
+            load = [subprocess.Popen([sys.executable, "-c", BUSY]) for _ in range(busy)]
+            try:
+                row[f"busy_{busy}"] = run_setting(env_changes, args)
+            finally:
+                for process in load:
+                    process.kill()
+                    process.wait()
+        rows.append(row)
+        print(json.dumps(row), file=sys.stderr, flush=True)
+    cores = os.cpu_count()
+    print(f"\n{cores} cores, {args.threads} torch threads, {args.cfg} profile {args.profile}; median of {args.frames} "
+          f"frames / {args.steps} steps; ratio = loaded / idle of the same setting\n")
+    header = ["setting", "idle infer ms", "idle step ms"]
+    for busy in args.busy:
+        header += [f"{busy} busy: infer ms (ratio)", f"{busy} busy: step ms (ratio)"]
+    print("| " + " | ".join(header) + " |\n|" + "---|" * len(header))
+    for row in rows:
+        cells = [row["setting"], f"{row['idle']['infer_ms']:.1f}", f"{row['idle']['train_step_ms']:.0f}"]
+        for busy in args.busy:
+            loaded = row[f"busy_{busy}"]
+            for key, digits in (("infer_ms", 1), ("train_step_ms", 0)):
+                cells.append(f"{loaded[key]:.{digits}f} ({loaded[key] / row['idle'][key]:.1f}x)")
+        print("| " + " | ".join(cells) + " |")
+    summary = {"cores": cores, "threads": args.threads, "cfg": args.cfg, "profile": args.profile, "rows": rows}
+    write_text(Path(args.output), json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
