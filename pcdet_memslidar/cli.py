@@ -6,6 +6,7 @@ Each subcommand is a module of pcdet_memslidar.commands, which defines `add_argu
 from __future__ import annotations
 
 import argparse
+import copy
 import errno
 import importlib
 import sys
@@ -43,6 +44,18 @@ OS_ERROR_FIXES = {
 }
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """--help with each option under its own name only: the first long spelling (and short ones); the others are
+    accepted aliases, such as OpenPCDet's underscore spellings (--batch_size for --batch-size)."""
+
+    def _format_action_invocation(self, action: argparse.Action) -> str:
+        long_names = [name for name in action.option_strings if name.startswith("--")]
+        if len(long_names) > 1:
+            action = copy.copy(action)
+            action.option_strings = [name for name in action.option_strings if name not in long_names[1:]]
+        return super()._format_action_invocation(action)
+
+
 def command_module(name: str):
     """The module of pcdet_memslidar.commands that implements command `name`."""
     return importlib.import_module(f"pcdet_memslidar.commands.{COMMANDS[name][0]}")
@@ -53,7 +66,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="memslidar", description="MEMS-LiDAR person detection, OpenPCDet-compatible.")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, summary) in COMMANDS.items():
-        sub = commands.add_parser(name, help=summary, description=summary)
+        sub = commands.add_parser(name, help=summary, description=summary, formatter_class=HelpFormatter)
         if name == command:
             command_module(name).add_arguments(sub)
     return parser

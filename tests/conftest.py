@@ -40,7 +40,7 @@ def bundled_asset():
 
 @pytest.fixture(scope="session")
 def real_recording(bundled_asset) -> Path:
-    """The real Cube 1 recording bundled in tests/assets/blickfeld (a copy of ../shared/data/blickfeld's)."""
+    """The real Cube 1 recording bundled in tests/assets/blickfeld (its README says where it came from)."""
     return bundled_asset("blickfeld/cube1_sample_2020.bfpc", REAL_RECORDING_SHA256)
 
 

@@ -1,7 +1,9 @@
 """The `memslidar` entry point: file-system faults as one line naming the path, the reason and the fix; one module
 per command with the shared options taken the same way; progress bars only on a terminal."""
+import argparse
 import errno
 import io
+import re
 import sys
 from pathlib import Path
 
@@ -64,6 +66,37 @@ def test_shared_options_are_taken_the_same_way(command, required):
     assert (args.profile, args.set_cfgs) == ("smoke", ["A.B", "1"])
     if command != "create-infos":
         assert args.workers == default_workers() == (min(4, available_cores()) if torch.cuda.is_available() else 0)
+
+
+def _command_parser(name: str) -> argparse.ArgumentParser:
+    parser = cli.build_parser(name)
+    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+    return commands.choices[name]
+
+
+WRITERS = ("simulate", "import", "export-custom", "train", "test", "reproduce", "sweep", "site", "detect")
+
+
+@pytest.mark.parametrize("name", list(cli.COMMANDS))
+def test_one_flag_style_with_openpcdet_spellings_as_hidden_aliases(name):
+    """Every option's own name is hyphenated (--batch-size); OpenPCDet's underscore spellings are aliases that --help
+    leaves out; every command that writes takes its output folder as --out."""
+    parser = _command_parser(name)
+    options = [action for action in parser._actions if action.option_strings]
+    own = [next(flag for flag in action.option_strings if flag.startswith("--")) for action in options]
+    assert [flag for flag in own if "_" in flag] == []
+    assert re.findall(r"--[a-z0-9]+_[a-z0-9_]*", parser.format_help()) == []
+    assert ("--out" in parser._option_string_actions) == (name in WRITERS)
+
+
+def test_openpcdet_spellings_parse_as_ours():
+    ours = _command_parser("train").parse_args(["--cfg", "c.yaml", "--batch-size", "4", "--extra-tag", "t", "--out",
+                                                "o", "--fix-random-seed", "--ckpt-save-interval", "2"])
+    openpcdet = _command_parser("train").parse_args(["--cfg_file", "c.yaml", "--batch_size", "4", "--extra_tag", "t",
+                                                     "--output_dir", "o", "--fix_random_seed",
+                                                     "--ckpt_save_interval", "2", "--wo_gpu_stat"])
+    assert vars(ours) == {**vars(openpcdet), "wo_gpu_stat": False}
+    assert (openpcdet.cfg_file, openpcdet.batch_size, openpcdet.output_dir) == ("c.yaml", 4, "o")
 
 
 def test_progress_bars_are_drawn_on_a_terminal_only(monkeypatch):

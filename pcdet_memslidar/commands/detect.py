@@ -17,7 +17,7 @@ from pcdet_memslidar.runtime.common import create_logger
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--cfg_file", "--cfg", dest="cfg_file", required=True, help="the detector's config (YAML)")
+    parser.add_argument("--cfg", "--cfg_file", dest="cfg_file", required=True, help="the detector's config (YAML)")
     parser.add_argument("--ckpt", required=True, help="its checkpoint (.pth)")
     parser.add_argument("--src", "--data_path", dest="src", required=True, type=Path,
                         help="a recording (.bfpc, many frames), a frame file, a folder of frames or a KITTI-layout "
@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_mount_arguments(parser)
     parser.add_argument("--zones", type=Path, default=None, help="zone file (YAML): named polygons with a level")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default output/detect/<src name>)")
-    parser.add_argument("--batch_size", type=int, default=None,
+    parser.add_argument("--batch-size", "--batch_size", type=int, default=None,
                         help="frames per forward pass (default: 1 on a CPU, fastest per frame there; 4 on a GPU)")
     parser.add_argument("--frame-period", type=float, default=FRAME_PERIOD_S,
                         help="seconds between frames of formats without time stamps (default %(default)s: the Cube 1 "
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if args.fmt not in FORMATS:
         raise ConfigError(f"--format {args.fmt!r}: use one of {', '.join(FORMATS)}")
     if (args.batch_size is not None and args.batch_size < 1) or not 0 < args.frame_period < math.inf:
-        raise ConfigError("--batch_size must be >= 1 and --frame-period a finite number of seconds > 0")
+        raise ConfigError("--batch-size must be >= 1 and --frame-period a finite number of seconds > 0")
     cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
     out = args.out or Path("output") / "detect" / args.src.name.split(".")[0]
     options = DetectOptions(src=args.src, out=out, fmt=args.fmt, mount=args.mount,

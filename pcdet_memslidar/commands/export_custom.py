@@ -1,4 +1,5 @@
-"""`memslidar export-custom KITTI_ROOT OUT_ROOT`: a KITTI-layout dataset -> OpenPCDet's custom layout (io.custom)."""
+"""`memslidar export-custom --src KITTI_ROOT --out OUT_ROOT`: a KITTI-layout dataset -> OpenPCDet's custom layout
+(io.custom)."""
 from __future__ import annotations
 
 import argparse
@@ -8,12 +9,12 @@ from pcdet_memslidar.io.custom import export_custom
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("kitti_root", type=Path, help="a KITTI-layout dataset, e.g. data/memslidar/sim")
-    parser.add_argument("out_root", type=Path, help="folder to write in OpenPCDet's custom layout: new, empty or "
-                                                    "an earlier export (replaced whole)")
+    parser.add_argument("--src", type=Path, required=True, help="a KITTI-layout dataset, e.g. data/memslidar/sim")
+    parser.add_argument("--out", type=Path, required=True, help="folder to write in OpenPCDet's custom layout: new, "
+                                                                "empty or an earlier export (replaced whole)")
 
 
 def run(args: argparse.Namespace) -> int:
-    count = export_custom(args.kitti_root, args.out_root)
-    print(f"exported {count} frames from {args.kitti_root} to {args.out_root} (points/, labels/, ImageSets/)")
+    count = export_custom(args.src, args.out)
+    print(f"exported {count} frames from {args.src} to {args.out} (points/, labels/, ImageSets/)")
     return 0

@@ -85,31 +85,37 @@ def experiment_command(words: list[str], args: argparse.Namespace) -> str:
 
 
 def add_openpcdet_arguments(parser: argparse.ArgumentParser) -> None:
-    """The flags `memslidar train` and `memslidar test` share (OpenPCDet's tools/train.py and tools/test.py names;
-    --cfg is an alias of --cfg_file), plus --profile."""
-    parser.add_argument("--cfg_file", "--cfg", dest="cfg_file", required=True, help="experiment config (YAML)")
-    parser.add_argument("--batch_size", type=int, default=None, help="frames per batch and process "
-                                                                     "(default OPTIMIZATION.BATCH_SIZE_PER_GPU)")
+    """The flags `memslidar train` and `memslidar test` share, hyphenated; OpenPCDet's tools/train.py and
+    tools/test.py spellings (--cfg_file, --batch_size, --output_dir, ...) are accepted as aliases (cli.HelpFormatter
+    keeps them out of --help), plus --profile."""
+    parser.add_argument("--cfg", "--cfg_file", dest="cfg_file", required=True, help="experiment config (YAML)")
+    parser.add_argument("--batch-size", "--batch_size", type=int, default=None,
+                        help="frames per batch and process (default OPTIMIZATION.BATCH_SIZE_PER_GPU)")
     add_workers(parser)
-    parser.add_argument("--extra_tag", default="default", help="output sub-folder name")
+    parser.add_argument("--extra-tag", "--extra_tag", default="default", help="output sub-folder name")
     parser.add_argument("--ckpt", default=None, help="checkpoint to start from (train) or evaluate (test)")
     parser.add_argument("--launcher", choices=["none", "pytorch", "slurm"], default="none",
                         help="pytorch: one process per device under torchrun (gloo on CPU, nccl on GPU)")
-    parser.add_argument("--tcp_port", type=int, default=18888, help="rendezvous port when MASTER_PORT is unset")
-    parser.add_argument("--local_rank", "--local-rank", type=int, default=None, help="set by the launcher")
-    parser.add_argument("--max_waiting_mins", type=int, default=0, help="minutes to wait for a checkpoint")
-    parser.add_argument("--start_epoch", type=int, default=0, help="first epoch to evaluate")
-    parser.add_argument("--save_to_file", action="store_true", default=False, help="write KITTI label files")
-    parser.add_argument("--output_dir", default=None, help="output root (default <repo>/output)")
+    parser.add_argument("--tcp-port", "--tcp_port", type=int, default=18888,
+                        help="rendezvous port when MASTER_PORT is unset")
+    parser.add_argument("--local-rank", "--local_rank", type=int, default=None, help="set by the launcher")
+    parser.add_argument("--max-waiting-mins", "--max_waiting_mins", type=int, default=0,
+                        help="minutes to wait for a checkpoint")
+    parser.add_argument("--start-epoch", "--start_epoch", type=int, default=0, help="first epoch to evaluate")
+    parser.add_argument("--save-to-file", "--save_to_file", action="store_true", default=False,
+                        help="write KITTI label files")
+    parser.add_argument("--out", "--output_dir", dest="output_dir", default=None,
+                        help="output root: a run goes to <out>/<config group>/<config name>/<extra tag> (default "
+                             "<repo>/output)")
     add_profile(parser)
     add_set(parser)
 
 
 def setup_experiment(args: argparse.Namespace) -> tuple[object, Process, Path]:
-    """(cfg, process, run folder) of OpenPCDet's flags: the config (--cfg_file, --profile, --set; --batch_size
+    """(cfg, process, run folder) of OpenPCDet's flags: the config (--cfg, --profile, --set; --batch-size
     replaces OPTIMIZATION.BATCH_SIZE_PER_GPU) with its grid (load_config) and batch size checked before any data is
     read, the process joined to its group (--launcher), and <output root>/<group>/<cfg name>/<extra_tag>."""
     cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)
-    cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU = option_count(args.batch_size, "--batch_size", "BATCH_SIZE_PER_GPU", cfg)
+    cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU = option_count(args.batch_size, "--batch-size", "BATCH_SIZE_PER_GPU", cfg)
     process = start_process(args.launcher, args.tcp_port, args.local_rank)
     return cfg, process, output_folder(cfg, args.output_dir, args.extra_tag)

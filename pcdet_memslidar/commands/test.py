@@ -1,4 +1,4 @@
-"""`memslidar test` / tools/test.py: evaluate one checkpoint (--ckpt) or all of a run (--eval_all) on the test
+"""`memslidar test` / tools/test.py: evaluate one checkpoint (--ckpt) or all of a run (--eval-all) on the test
 split with OpenPCDet's flags (runtime.predict) and print AP 3D / BEV at IoU 0.5; with --diagnose also which part
 of a box costs the AP (evaluation.diagnose). Another split: --set DATA_CONFIG.DATA_SPLIT.test val.
 Output: <run>/eval/epoch_N/<split>/[<eval_tag>/]{result.pkl, log[, diagnosis.json]}."""
@@ -29,15 +29,15 @@ POLL_SECONDS = 30
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_openpcdet_arguments(parser)
-    parser.add_argument("--eval_tag", default="default", help="sub-folder of this evaluation's results")
-    parser.add_argument("--eval_all", action="store_true", default=False,
-                        help="evaluate every checkpoint_epoch_N.pth of --ckpt_dir from --start_epoch on")
-    parser.add_argument("--ckpt_dir", default=None, help="default <run>/ckpt")
+    parser.add_argument("--eval-tag", "--eval_tag", default="default", help="sub-folder of this evaluation's results")
+    parser.add_argument("--eval-all", "--eval_all", action="store_true", default=False,
+                        help="evaluate every checkpoint_epoch_N.pth of --ckpt-dir from --start-epoch on")
+    parser.add_argument("--ckpt-dir", "--ckpt_dir", default=None, help="default <run>/ckpt")
     parser.add_argument("--diagnose", action="store_true", default=False,
                         help="also print the AP with each part of the boxes replaced by the ground truth's and how "
                              "predicted extents follow the labels (diagnosis.json beside result.pkl)")
-    parser.add_argument("--infer_time", action="store_true", default=False, help="accepted; ms/frame is always "
-                                                                                 "logged")
+    parser.add_argument("--infer-time", "--infer_time", action="store_true", default=False,
+                        help=argparse.SUPPRESS)  # OpenPCDet's; ms/frame is always logged
     add_precision(parser)
 
 
@@ -64,7 +64,7 @@ def diagnose(dataset, result_dir: Path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if not args.eval_all and not args.ckpt:
-        raise ConfigError("pass --ckpt <checkpoint.pth> or --eval_all")
+        raise ConfigError("pass --ckpt <checkpoint.pth> or --eval-all")
     cfg, process, output_dir = setup_experiment(args)
     split = test_split(cfg)
     eval_dir = output_dir / "eval"
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     checkpoints = _wait_for_checkpoints(ckpt_dir, args.start_epoch, args.max_waiting_mins, logger)
     if not checkpoints:
         raise ConfigError(f"no checkpoint_epoch_N.pth with N >= {args.start_epoch} in {ckpt_dir}: train first, or "
-                          f"pass --ckpt_dir, --start_epoch or --max_waiting_mins")
+                          f"pass --ckpt-dir, --start-epoch or --max-waiting-mins")
     tb_log = SummaryWriter(str(eval_dir / f"tensorboard_{split}")) if process.rank == 0 else None
     for ckpt in checkpoints:
         epoch = checkpoint_epoch(ckpt)

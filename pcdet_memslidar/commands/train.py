@@ -27,21 +27,30 @@ SEED = 666  # OpenPCDet's fixed seed (plus the rank)
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_openpcdet_arguments(parser)
     parser.add_argument("--epochs", type=int, default=None, help="default OPTIMIZATION.NUM_EPOCHS")
-    parser.add_argument("--pretrained_model", default=None, help="weights to start from (matching entries)")
-    parser.add_argument("--sync_bn", action="store_true", default=False, help="synchronised BatchNorm (GPU)")
-    parser.add_argument("--fix_random_seed", action="store_true", default=False, help="reproducible run")
-    parser.add_argument("--ckpt_save_interval", type=int, default=1, help="epochs between checkpoints")
-    parser.add_argument("--max_ckpt_save_num", type=int, default=30, help="checkpoints kept")
-    parser.add_argument("--merge_all_iters_to_one_epoch", action="store_true", default=False)
-    parser.add_argument("--num_epochs_to_eval", type=int, default=0,
+    parser.add_argument("--pretrained-model", "--pretrained_model", default=None,
+                        help="weights to start from (matching entries)")
+    parser.add_argument("--sync-bn", "--sync_bn", action="store_true", default=False,
+                        help="synchronised BatchNorm (GPU)")
+    parser.add_argument("--fix-random-seed", "--fix_random_seed", action="store_true", default=False,
+                        help="reproducible run")
+    parser.add_argument("--ckpt-save-interval", "--ckpt_save_interval", type=int, default=1,
+                        help="epochs between checkpoints")
+    parser.add_argument("--max-ckpt-save-num", "--max_ckpt_save_num", type=int, default=30, help="checkpoints kept")
+    parser.add_argument("--merge-all-iters-to-one-epoch", "--merge_all_iters_to_one_epoch", action="store_true",
+                        default=False, help="one loader pass over all epochs' iterations, cut into epochs")
+    parser.add_argument("--num-epochs-to-eval", "--num_epochs_to_eval", type=int, default=0,
                         help="evaluate the checkpoints of the last N epochs after training (0: the last one)")
-    parser.add_argument("--use_tqdm_to_record", action="store_true", default=False,
+    parser.add_argument("--use-tqdm-to-record", "--use_tqdm_to_record", action="store_true", default=False,
                         help="log progress lines instead of tqdm bars")
-    parser.add_argument("--logger_iter_interval", type=int, default=50)
-    parser.add_argument("--ckpt_save_time_interval", type=int, default=300, help="seconds between latest_model saves")
-    parser.add_argument("--wo_gpu_stat", action="store_true", default=False, help="accepted for compatibility")
-    parser.add_argument("--use_amp", action="store_true", default=False, help="mixed precision (CUDA only)")
-    parser.add_argument("--val_interval", type=int, default=1,
+    parser.add_argument("--logger-iter-interval", "--logger_iter_interval", type=int, default=50,
+                        help="iterations between log lines")
+    parser.add_argument("--ckpt-save-time-interval", "--ckpt_save_time_interval", type=int, default=300,
+                        help="seconds between latest_model saves")
+    parser.add_argument("--wo-gpu-stat", "--wo_gpu_stat", action="store_true", default=False,
+                        help=argparse.SUPPRESS)  # OpenPCDet's; there is no GPU statistic to leave out
+    parser.add_argument("--use-amp", "--use_amp", action="store_true", default=False,
+                        help="mixed precision (CUDA only)")
+    parser.add_argument("--val-interval", "--val_interval", type=int, default=1,
                         help="epochs between AP evaluations on the val split (tensorboard val/*); 0: none")
 
 

@@ -32,7 +32,7 @@ def build_dataloader(dataset_cfg, class_names, batch_size, dist, root_path=None,
                   timeout=0)
     if training and dataset_cfg.get("MIX", {}).get("BALANCE_BATCHES", False):
         if merge_all_iters_to_one_epoch:
-            raise ConfigError("DATA_CONFIG.MIX.BALANCE_BATCHES does not combine with --merge_all_iters_to_one_epoch")
+            raise ConfigError("DATA_CONFIG.MIX.BALANCE_BATCHES does not combine with --merge-all-iters-to-one-epoch")
         sampler = MixedBatchSampler(dataset.sample_sources, batch_size, seed=seed or 0, num_replicas=world_size,
                                     rank=rank)
         return dataset, DataLoader(dataset, batch_sampler=sampler, **common), sampler

@@ -368,7 +368,7 @@ def render_report(results: dict) -> str:
           if results.get("profile_settings") else []),
         f"- date: {results['date']}; total wall time {results['wall_seconds'] / 60:.1f} min", "",
         "The bundled `real` and `industrial` domains are **simulated stand-ins** for the paper's unpublished Cube 1 "
-        "recordings (DESIGN.md); the numbers below compare the method, not the paper's data.", "",
+        "recordings (docs/design.md, Domains); the numbers below compare the method, not the paper's data.", "",
         "## Table 2: training sets as built", "",
         "Frames of each source before the stable 70/30 train/val split, and after it.", "",
         *table2(results), "",

@@ -100,7 +100,7 @@ def export_custom(kitti_root: str | Path, out_root: str | Path) -> int:
     `out_root` must be new, empty or an earlier export (replaced whole), and must not be or contain `kitti_root`
     (OutputError). ImageSets train/val are copied; when the KITTI layout has none, stable_split's are written.
     Returns the number of frames."""
-    refuse_overlap(out_root, [kitti_root], "OUT_ROOT")
+    refuse_overlap(out_root, [kitti_root], "--out")
     layout = KittiLayout(kitti_root)
     frame_ids = layout.frame_ids()
     if not frame_ids:

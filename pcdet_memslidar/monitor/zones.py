@@ -52,7 +52,7 @@ def read_zones(path: str | Path) -> list[Zone]:
     anything malformed."""
     path = Path(path)
     if not path.is_file():
-        raise DataFormatError(path, "zone file not found: give a YAML file with a 'zones' list (README, Zones)")
+        raise DataFormatError(path, "zone file not found: give a YAML file with a 'zones' list (docs/detect.md, Zones)")
     try:
         document = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:

@@ -7,7 +7,8 @@ round(NUM_EPOCHS x EPOCH_SHARE) epochs into <run_dir>/pretrain. Stage 2 trains t
 epochs into <run_dir>, starting from stage 1's final weights (OpenPCDet's --pretrained_model: weights only, a fresh
 optimizer and OneCycle) with the learning rate times FINETUNE_LR_SCALE. When both mixes hold the same number of
 frames, the two stages take the optimizer steps of the config without PRETRAIN (M5 against M3: the same compute).
-OpenPCDet's own tools/train.py ignores PRETRAIN: there, run stage 1 and stage 2 as two trainings (README).
+OpenPCDet's own tools/train.py ignores PRETRAIN: there, run stage 1 and stage 2 as two trainings
+(docs/getting_started.md, "Sweeps and fine-tuning").
 """
 from __future__ import annotations
 

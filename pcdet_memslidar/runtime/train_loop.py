@@ -97,10 +97,10 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
     accumulated_iter = start_iter
     iters_per_epoch = len(train_loader) // max(total_epochs, 1) if merge_all_iters_to_one_epoch else len(train_loader)
     if iters_per_epoch == 0:
-        raise ValueError("the training split gives no batch: add frames or lower --batch_size")
+        raise ValueError("the training split gives no batch: add frames or lower --batch-size")
     scaler = torch.amp.GradScaler("cuda") if use_amp and torch.device(device).type == "cuda" else None
     if use_amp and scaler is None:
-        logger.info("--use_amp is ignored on the CPU (spconv has no CPU half-precision kernels)")
+        logger.info("--use-amp is ignored on the CPU (spconv has no CPU half-precision kernels)")
     state = {"passes": 0}
     batches = _batches(train_loader, train_sampler, start_epoch, state)
     show_bar = rank == 0 and not use_tqdm_to_record

@@ -1,4 +1,5 @@
-"""Rotated IoU: every hard case of REFERENCE.md section 7 with its exact value, invariances, a shapely cross-check."""
+"""Rotated IoU: hard cases with their exact values (turned, collinear, touching, tiny, far-off and flat boxes),
+invariances, a shapely cross-check."""
 import numpy as np
 import pytest
 import torch

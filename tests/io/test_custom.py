@@ -60,7 +60,7 @@ def test_custom_errors(tmp_path):
 def test_export_custom_command(tmp_path, capsys):
     layout = KittiLayout(tmp_path / "kitti")
     write_frame(layout, "000000", np.zeros((3, 4)), ["Pedestrian"], np.array([[5, 0, 0.9, 0.6, 0.5, 1.8, 0]]), {})
-    assert main(["export-custom", str(layout.root), str(tmp_path / "out")]) == 0
+    assert main(["export-custom", "--src", str(layout.root), "--out", str(tmp_path / "out")]) == 0
     assert "exported 1 frames" in capsys.readouterr().out
     assert custom.read_custom_label(tmp_path / "out/labels/000000.txt")[0].tolist() == ["Pedestrian"]
 
@@ -74,7 +74,7 @@ def _tree(root):
 def _export_error(capsys, *args) -> str:
     """stderr of `memslidar export-custom ARGS`, which must exit 2 without a traceback."""
     with pytest.raises(SystemExit) as exit_:
-        main(["export-custom", *map(str, args)])
+        main(["export-custom", "--src", str(args[0]), "--out", str(args[1])])
     assert exit_.value.code == 2
     error = capsys.readouterr().err
     assert error.startswith("memslidar export-custom: error: ") and "Traceback" not in error
@@ -89,8 +89,8 @@ def test_export_custom_never_replaces_an_input_or_what_it_did_not_write(tmp_path
     user.mkdir()
     (user / "notes.txt").write_text("mine")
     (tmp_path / "file").write_text("mine")
-    for out, message in ((layout.root, rf"OUT_ROOT {layout.root} is the input {layout.root}; choose OUT_ROOT outside"),
-                         (tmp_path / "data", "OUT_ROOT .*data contains the input .*kitti"),
+    for out, message in ((layout.root, rf"--out {layout.root} is the input {layout.root}; choose --out outside"),
+                         (tmp_path / "data", "--out .*data contains the input .*kitti"),
                          (user, f"{user} holds files that memslidar export-custom did not write .*choose a new folder"),
                          (tmp_path / "file", f"{tmp_path / 'file'} is a file")):
         assert re.search(message, _export_error(capsys, layout.root, out))

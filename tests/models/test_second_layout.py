@@ -8,7 +8,7 @@ from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.models import build_network, load_data_to_device
 
-# Measured from OpenPCDet (commit 8cacccec) on CPU for the person config; a copy of ../shared/reference/.
+# Measured from OpenPCDet (commit 8cacccec) on CPU for the person config; the .tsv file beside this test.
 REFERENCE = Path(__file__).with_name("openpcdet_second_person_state_dict.tsv")
 
 

@@ -173,5 +173,5 @@ def test_a_frame_period_that_is_not_a_finite_positive_number_is_refused_in_one_l
         cli.main(["detect", "--cfg", REPO_CFG, "--ckpt", "none.pth", "--src", str(tmp_path), "--frame-period", period,
               "--out", str(tmp_path / "out")])
     assert error.value.code == 2
-    assert capsys.readouterr().err.strip() == ("memslidar detect: error: --batch_size must be >= 1 and --frame-period "
+    assert capsys.readouterr().err.strip() == ("memslidar detect: error: --batch-size must be >= 1 and --frame-period "
                                                 "a finite number of seconds > 0")
