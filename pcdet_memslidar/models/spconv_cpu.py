@@ -4,6 +4,8 @@ spconv's CPU wheel asks CUDA for its current stream in the backward pass even fo
 that raises "Torch not compiled with CUDA enabled". Its CPU scatter-add also races with more than one torch
 thread (forward and backward outputs off by up to about 30 %). So the forward of the sparse backbone runs inside
 `single_thread()`, and `patch_spconv()` makes every spconv autograd backward run on one thread as well.
+Every SparseConvTensor asks torch.fx whether it is being traced, and torch logs a notice about that question (once
+per process, so once per training process of `memslidar reproduce`): `patch_spconv()` keeps it out of the log.
 """
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import contextlib
 import functools
 import importlib
 import inspect
+import logging
 from typing import Callable, Iterator
 
 import torch
@@ -50,12 +53,18 @@ def _single_thread_backward(backward: Callable) -> Callable:
     return staticmethod(wrapped)
 
 
+def _not_fx_tracing_notice(record: logging.LogRecord) -> bool:
+    return not record.getMessage().startswith("is_fx_tracing will return true")
+
+
 def patch_spconv() -> bool:
     """Patch spconv in place; idempotent. Returns True if the CUDA-free stream patch was applied.
 
     - Without CUDA, `get_current_stream` in spconv's cppcore, ops and hash modules returns the null stream.
-    - Always: the backward of each spconv autograd Function runs with one thread for CPU tensors.
+    - Always: the backward of each spconv autograd Function runs with one thread for CPU tensors, and torch.fx's
+      notice about is_fx_tracing (which SparseConvTensor calls) is filtered from its logger.
     """
+    logging.getLogger("torch.fx._symbolic_trace").addFilter(_not_fx_tracing_notice)
     functional = importlib.import_module("spconv.pytorch.functional")
     for _, cls in inspect.getmembers(functional, inspect.isclass):
         if issubclass(cls, torch.autograd.Function) and cls.__module__ == functional.__name__:

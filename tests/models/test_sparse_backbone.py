@@ -1,6 +1,9 @@
 """spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, in training
 (spconv) and in inference (models.rulebook), the CPU patch is idempotent, and the sparse output becomes the BEV map
 exactly on 2 threads."""
+import subprocess
+import sys
+
 import pytest
 import spconv.pytorch as spconv
 import torch
@@ -167,3 +170,14 @@ def test_height_compression_places_every_voxel_exactly_at_two_threads(two_thread
     assert bev.shape == (batch, channels * shape[0], shape[1], shape[2])
     assert torch.equal(bev, expected.view(batch, channels * shape[0], shape[1], shape[2]))
     assert torch.equal(bev[b[0], 1 * shape[0] + z[0], y[0], x[0]], features[0, 1])
+
+
+@pytest.mark.parametrize("patched", [False, True])
+def test_torch_fx_notice_stays_out_of_the_log_once_spconv_is_patched(patched):
+    """Every SparseConvTensor asks torch.fx whether it traces; torch logs a notice the first time in a process."""
+    code = ("import torch, spconv.pytorch as spconv\n"
+            + ("from pcdet_memslidar.models.spconv_cpu import patch_spconv\npatch_spconv()\n" if patched else "")
+            + "spconv.SparseConvTensor(torch.ones(1, 1), torch.zeros(1, 4, dtype=torch.int32), [2, 2, 2], 1)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert ("is_fx_tracing" in done.stderr) is not patched
