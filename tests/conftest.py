@@ -19,7 +19,6 @@ from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.utils import atomic
 
 REPO = Path(__file__).resolve().parents[1]
-ASSETS = Path(__file__).resolve().parent / "assets"
 REAL_RECORDING_SHA256 = "f2fafd8bf6d63a6e579a8c510985f12c81feed00e783c2edcc6f54ab13a0f492"  # Blickfeld's dump.bfpc
 
 
@@ -27,10 +26,10 @@ REAL_RECORDING_SHA256 = "f2fafd8bf6d63a6e579a8c510985f12c81feed00e783c2edcc6f54a
 
 @pytest.fixture(scope="session")
 def bundled_asset():
-    """bundled_asset(relative, sha256) -> tests/assets/relative, after checking that it is there and unchanged (its
-    README says where it came from)."""
+    """bundled_asset(relative, sha256) -> the repository's file at `relative`, after checking that it is there and
+    unchanged (the README beside it says where it came from)."""
     def check(relative: str, sha256: str) -> Path:
-        path = ASSETS / relative
+        path = REPO / relative
         assert path.is_file(), f"missing {path}: restore it from git"
         digest = hashlib.sha256(path.read_bytes()).hexdigest()
         assert digest == sha256, f"{path} changed (sha256 {digest}): restore it from git"
@@ -40,8 +39,8 @@ def bundled_asset():
 
 @pytest.fixture(scope="session")
 def real_recording(bundled_asset) -> Path:
-    """The real Cube 1 recording bundled in tests/assets/blickfeld (its README says where it came from)."""
-    return bundled_asset("blickfeld/cube1_sample_2020.bfpc", REAL_RECORDING_SHA256)
+    """The real Cube 1 recording bundled in examples/recordings/blickfeld (its README says where it came from)."""
+    return bundled_asset("examples/recordings/blickfeld/cube1_sample_2020.bfpc", REAL_RECORDING_SHA256)
 
 
 @pytest.fixture(scope="session")
