@@ -39,8 +39,8 @@ def bundled_asset():
 
 @pytest.fixture(scope="session")
 def real_recording(bundled_asset) -> Path:
-    """The real Cube 1 recording bundled in examples/recordings/blickfeld (its README says where it came from)."""
-    return bundled_asset("examples/recordings/blickfeld/cube1_sample_2020.bfpc", REAL_RECORDING_SHA256)
+    """The real Cube 1 recording bundled in pcdet_memslidar/assets/blickfeld (its README says where it came from)."""
+    return bundled_asset("pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc", REAL_RECORDING_SHA256)
 
 
 @pytest.fixture(scope="session")

@@ -15,7 +15,7 @@ from pcdet_memslidar.sim.site import load_site
 
 ROOT = Path(__file__).resolve().parents[1]
 SITE = ROOT / "examples" / "blickfeld_room.yaml"
-RECORDING = ROOT / "examples" / "recordings" / "blickfeld" / "cube1_sample_2020.bfpc"
+RECORDING = ROOT / "pcdet_memslidar" / "assets" / "blickfeld" / "cube1_sample_2020.bfpc"
 
 
 def test_site_check_draws_the_floor_to_look_at(tmp_path, capsys):

@@ -6,7 +6,7 @@ beam footprint (sampled with `beam_divergence_rad`), that surface's range. It re
 intensity as the device reports it (integers 0-511) and a mask of pulses that produced a return.
 
 Presets (`get_sensor`):
-- 'calibrated': fitted on the real Cube 1 recording in examples/recordings/blickfeld (see `recording_stats`):
+- 'calibrated': fitted on the real Cube 1 recording in pcdet_memslidar/assets/blickfeld (see `recording_stats`):
   Gaussian range noise whose sigma grows slowly with range (median about 0.8 cm), mixed pixels at edges,
   dropout = base rate + soft received-power threshold, intensity = reflectivity x |cos incidence| nearly flat
   with range, minimum and maximum range.
@@ -163,7 +163,7 @@ def _echo_ranges(echo, noise, draw, detection, sigma_m, sigma_per_m, scale_sigma
     return measured
 
 
-# Calibrated on examples/recordings/blickfeld/cube1_sample_2020.bfpc: recording_stats.calibrate_sensor(pulse_arrays(
+# Calibrated on pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc: recording_stats.calibrate_sensor(pulse_arrays(
 # read_bfpc(...)), intensity_scale=375) gives the range noise line (0.60 cm + 0.039 cm/m: median sigma 0.82 cm),
 # the intensity slope and jitter, the minimum range and the dropout (almost no random dropout: pulses miss when
 # their received power is near the threshold). mixed_pixel_gap_m (2.5 m) is fitted to the edge tail: replaying the

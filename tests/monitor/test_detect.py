@@ -16,7 +16,7 @@ from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 
 REPO_CFG = "cfgs/m3.yaml"
-RECORDING = "examples/recordings/blickfeld/cube1_sample_2020.bfpc"
+RECORDING = "pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc"
 RECORDING_SHA256 = "f2fafd8bf6d63a6e579a8c510985f12c81feed00e783c2edcc6f54ab13a0f492"
 ZONES = "zones:\n  - {name: near, level: protective, polygon: [[2, -10], [12, -10], [12, 10], [2, 10]]}\n"
 

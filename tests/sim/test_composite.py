@@ -26,7 +26,7 @@ from pcdet_memslidar.sim.people import BODY_RADIUS_M, Person
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.sim.site import Background, load_site
 
-RECORDING = Path(__file__).parents[2] / "examples" / "recordings" / "blickfeld" / "cube1_sample_2020.bfpc"
+RECORDING = Path(__file__).parents[2] / "pcdet_memslidar" / "assets" / "blickfeld" / "cube1_sample_2020.bfpc"
 MOUNT = Mount(1.6, 0.0)
 WALL_X, WALL_TOP = 6.0, 1.0  # a wall 6 m ahead, 1 m high; nothing else returns (no floor, no ceiling)
 # the calibrated physics without noise, dropout or mixed pixels: a person's return lies exactly at its hit

@@ -1,4 +1,4 @@
-"""Statistics of the real recording against the values documented in examples/recordings/blickfeld/README.md, and the
+"""Statistics of the real recording against the values documented in pcdet_memslidar/assets/blickfeld/README.md, and the
 calibrated sensor preset against the recording it was fitted on."""
 import pytest
 

@@ -21,7 +21,7 @@ from pcdet_memslidar.sim.writer import simulate_dataset
 PRESET_SHA256 = {"sim": "22b561f91b40ddb0f87117c5580f89df5c6b96ac1bbed83139eab56e30de56f3",
                  "real": "f60cae4f43d9cfa7e7c52b1ec6e76e0ae4fd74442f6f967aead4380080760df4",
                  "industrial": "5cdf98bd9a28a7b93a3569c58fdd8f8cc85ed67f985fd9ff66a77257be0f3933"}
-RECORDING = Path(__file__).parents[2] / "examples" / "recordings" / "blickfeld" / "cube1_sample_2020.bfpc"
+RECORDING = Path(__file__).parents[2] / "pcdet_memslidar" / "assets" / "blickfeld" / "cube1_sample_2020.bfpc"
 
 
 @pytest.mark.parametrize("name", BUNDLED_SITES)
