@@ -395,8 +395,8 @@ def profile_settings(config: EasyDict) -> list[str]:
 
 
 def experiment_group(cfg_file: str | Path) -> str:
-    """OpenPCDet's EXP_GROUP_PATH: the folders after `cfgs/` ('cfgs/memslidar_models/second_person.yaml' -> 'memslidar_models');
-    without a `cfgs` folder in the path, the config's parent folder name."""
+    """OpenPCDet's EXP_GROUP_PATH: the folders after `cfgs/` ('cfgs/memslidar_models/second_person.yaml' ->
+    'memslidar_models'); without a `cfgs` folder in the path, the config's parent folder name."""
     parts = Path(cfg_file).resolve().parts[:-1]
     if "cfgs" in parts:
         index = len(parts) - 1 - parts[::-1].index("cfgs")

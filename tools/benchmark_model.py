@@ -26,10 +26,10 @@ import torch
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.mixing import split_sources
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.experiments.runs import default_jobs, run_jobs
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
-from pcdet_memslidar.reproduce import default_jobs, run_jobs
 from pcdet_memslidar.runtime.common import get_device, set_random_seed
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.runtime.train_loop import train_one_step
@@ -131,7 +131,7 @@ def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) ->
 
 def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dict]:
     """{name: {AP3D_R40 (test split), val_AP3D_R40 (last epoch), train_minutes}} of every variant trained with its
-    config's budget, all at once in worker processes (reproduce.run_jobs) into out_dir/<name>."""
+    config's budget, all at once in worker processes (experiments.runs.run_jobs) into out_dir/<name>."""
     jobs = []
     for name, cfg in variants.items():
         test, = split_sources(cfg.DATA_CONFIG, "test", Path(cfg.DATA_CONFIG.DATA_PATH))
@@ -139,7 +139,7 @@ def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dic
         jobs.append({"model": name, "seed": 0, "cfg": cfg, "run_dir": run_dir,
                      "gt_dir": KittiLayout(test.root).training / "label_2", "out": out_dir, "workers": 0,
                      "threads": threads, "every_epoch": False})
-    runs = run_jobs(jobs, min(len(jobs), default_jobs()), logging.getLogger(__name__))
+    runs = run_jobs(jobs, min(len(jobs), default_jobs(len(jobs))), logging.getLogger(__name__))
     return {job["model"]: {"AP3D_R40": run["metrics"]["AP3D_R40"], "val_AP3D_R40": run["curve"][-1]["val_AP3D_R40"],
                            "train_minutes": run["curve"][-1]["minutes"]} for job, run in zip(jobs, runs)}
 

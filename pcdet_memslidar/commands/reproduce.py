@@ -1,4 +1,4 @@
-"""`memslidar reproduce`: the paper's M1-M4 experiment end to end (pcdet_memslidar.reproduce).
+"""`memslidar reproduce`: the paper's M1-M4 experiment end to end (pcdet_memslidar.experiments.reproduce).
 
     memslidar reproduce --profile quick [--models M ...] [--seeds K] [--out DIR] [--data-root DIR] [--jobs N]
                         [--set KEY VALUE ...]
@@ -10,8 +10,8 @@ from pathlib import Path
 
 from pcdet_memslidar.commands.options import add_experiment_arguments, add_profile, add_set, experiment_command
 from pcdet_memslidar.config import cfg as global_cfg
-from pcdet_memslidar.evaluation.report import HEADLINE
-from pcdet_memslidar.reproduce import KNOWN_RUNS, RUNS, reproduce
+from pcdet_memslidar.experiments.report import HEADLINE
+from pcdet_memslidar.experiments.reproduce import KNOWN_RUNS, RUNS, reproduce
 
 BENCHMARK_RESULTS = Path("output/benchmark/model_benchmark.json")  # tools/benchmark_model.py's, relative to the repo
 

@@ -1,5 +1,5 @@
 """`memslidar site check|train`: a site file's floor and field of view, and a detector for the site trained on
-its empty recording with people composited into it (pcdet_memslidar.site_detector).
+its empty recording with people composited into it (pcdet_memslidar.experiments.site_detector).
 
     memslidar site check --site FILE [--out DIR]
     memslidar site train --site FILE [--out DIR] [--profile quick] [--frames N] [--test-frames N] [--holdout F]
@@ -18,10 +18,10 @@ from pcdet_memslidar.commands.options import add_profile, add_set
 from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_ground_check
-from pcdet_memslidar.evaluation.report import HEADLINE
+from pcdet_memslidar.experiments.report import HEADLINE
+from pcdet_memslidar.experiments.site_detector import SitePlan, site_extent, train_site
 from pcdet_memslidar.sim.composite import estimate_background_mount, recording_points
 from pcdet_memslidar.sim.site import load_site
-from pcdet_memslidar.site_detector import SitePlan, site_extent, train_site
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

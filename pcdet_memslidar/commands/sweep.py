@@ -1,4 +1,4 @@
-"""`memslidar sweep`: the paper's open questions as sweeps over the training set (pcdet_memslidar.sweeps).
+"""`memslidar sweep`: the paper's open questions as sweeps over the training set (pcdet_memslidar.experiments.sweeps).
 
     memslidar sweep ratio|real-budget [--grid P ...] --profile quick [--seeds K] [--out DIR] [--data-root DIR]
                     [--jobs N] [--set KEY VALUE ...]
@@ -10,7 +10,7 @@ from pathlib import Path
 
 from pcdet_memslidar.commands.options import add_experiment_arguments, add_profile, add_set, experiment_command
 from pcdet_memslidar.config import cfg as global_cfg
-from pcdet_memslidar.sweeps import SWEEPS, sweep
+from pcdet_memslidar.experiments.sweeps import SWEEPS, sweep
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

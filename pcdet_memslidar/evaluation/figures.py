@@ -172,7 +172,7 @@ def plot_frame(path: str | Path, points: np.ndarray, gt_boxes: np.ndarray, title
                                                                           if len(predictions) else ""))
     side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=bev.get_xlim(),
              ylim=(SIDE_Z[0], max(SIDE_Z[1], points[:, 2].max(initial=0))))
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_frames(path: str | Path, panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]],
@@ -197,7 +197,7 @@ def plot_frames(path: str | Path, panels: list[tuple[str, np.ndarray, np.ndarray
         bev.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal", xlim=(x0, x1), ylim=(y0, y1))
         bev.set_title(title, fontsize=9)
         side.set(xlabel="x (forward) [m]", ylabel="z (up) [m]", aspect="equal", xlim=(x0, x1), ylim=SIDE_Z)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_example_frames(path: str | Path, frames: list[dict], predictions: dict[str, list[dict]],
@@ -237,7 +237,7 @@ def plot_example_frames(path: str | Path, frames: list[dict], predictions: dict[
                 bev.set_ylabel("y [m]", fontsize=7)
                 side.set_ylabel("z [m]", fontsize=7)
     figure.suptitle(f"ground truth (blue), predictions with score >= {score_threshold} (green)", fontsize=9)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_pr_curves(path: str | Path, curves: dict[str, dict[str, dict]], aps: dict[str, dict[str, float]]) -> Path:
@@ -257,7 +257,7 @@ def plot_pr_curves(path: str | Path, curves: dict[str, dict[str, dict]], aps: di
                title=f"{kind} IoU 0.5, industrial split")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def labels_below(entries: list[dict]) -> list[bool]:
@@ -286,7 +286,7 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
            title="AP on the industrial split against inference time")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Path:
@@ -308,7 +308,7 @@ def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Pat
     for ax in (loss_ax, ap_ax):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_sweep(path: str | Path, lines: dict[str, list[tuple[float, list[float]]]], xlabel: str, title: str,
@@ -331,38 +331,7 @@ def plot_sweep(path: str | Path, lines: dict[str, list[tuple[float, list[float]]
     ax.title.set_fontsize(9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    return _save(figure, path)
-
-
-ZONE_COLORS = {"warning": "tab:orange", "protective": "tab:red"}
-
-
-def plot_tracks_frame(path: str | Path, boxes: np.ndarray, track_ids: list[int | None], trails: dict[int, np.ndarray],
-                      zones: list[tuple[str, str, np.ndarray]], events: list[dict], title: str,
-                      window: tuple[np.ndarray, np.ndarray]) -> Path:
-    """Bird's-eye view of one frame of `memslidar detect`: zones (name, level, polygon (K, 2)) filled by level,
-    detections (M, 7) coloured by track id (grey: tentative) with their trails {id: (T, 2) centres}; the frame's
-    events in the title. window: the x and y ranges (2,) [m]. No points: only what detect keeps."""
-    figure = Figure(figsize=(7, 7), layout="constrained")
-    ax = figure.add_subplot(1, 1, 1)
-    for name, level, polygon in zones:
-        ax.add_patch(Polygon(polygon, closed=True, facecolor=ZONE_COLORS[level], alpha=0.2,
-                             edgecolor=ZONE_COLORS[level]))
-        ax.text(*polygon.mean(axis=0), f"{name} ({level})", fontsize=8, ha="center", color=ZONE_COLORS[level])
-    palette = ["C0", "C2", "C4", "C5", "C6", "C8", "C9"]  # no orange, red or grey: the zones and tentative boxes
-    for track_id, trail in trails.items():
-        ax.plot(trail[:, 0], trail[:, 1], color=palette[track_id % len(palette)], linewidth=1, alpha=0.6)
-    for box, track_id in zip(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), track_ids):
-        color = "0.6" if track_id is None else palette[track_id % len(palette)]
-        draw_boxes_bev(ax, box[None], color, linewidth=1.5)
-        if track_id is not None:
-            ax.text(box[0], box[1] + 0.6, str(track_id), color=color, fontsize=9, ha="center")
-    happened = "; ".join(f"{e['event']} {e['zone']} #{e['track_id']}" for e in events)
-    ax.set(xlabel="x (forward) [m]", ylabel="y (left) [m]", aspect="equal", xlim=window[0], ylim=window[1],
-           title=title + (f"\n{happened}" if happened else ""))
-    ax.title.set_fontsize(9)
-    ax.grid(alpha=0.3)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
 def plot_ground_check(path: str | Path, points: np.ndarray, mount: Mount, title: str = "",
@@ -390,10 +359,11 @@ def plot_ground_check(path: str | Path, points: np.ndarray, mount: Mount, title:
     evidence = (f"height {mount.height:.2f} m, tilt {mount.tilt_deg:.2f} deg, roll {mount.roll_deg:.2f} deg; orange: "
                 f"{floor.mean():.1%} of the points within {floor_band_m} m of z = 0")
     side.set_title(f"{title}\n{evidence}" if title else evidence, fontsize=9)
-    return _save(figure, path)
+    return save_figure(figure, path)
 
 
-def _save(figure: Figure, path: str | Path) -> Path:
+def save_figure(figure: Figure, path: str | Path) -> Path:
+    """Write `figure` as a PNG at `path` atomically; returns the path."""
     path = Path(path)
     with atomic_path(path) as tmp:
         figure.savefig(tmp, format="png", dpi=130)

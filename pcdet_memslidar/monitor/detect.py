@@ -25,7 +25,6 @@ import torch
 
 from pcdet_memslidar.datasets.dataset import DatasetTemplate
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.evaluation.figures import plot_tracks_frame
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
@@ -33,6 +32,7 @@ from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
 from pcdet_memslidar.io.pointclouds import SUFFIXES
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
+from pcdet_memslidar.monitor.plots import plot_tracks_frame
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
 from pcdet_memslidar.runtime.predict import load_detector

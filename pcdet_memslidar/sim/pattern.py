@@ -126,8 +126,8 @@ class ScanPattern:
         return directions, tau - tau[0], np.concatenate(lines)
 
 
-# Mirror geometry of the Cube 1 fitted to pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc (all 10 frames agree to
-# 1e-4) with recording_stats.fit_pattern: horizontal swing 79.68 deg (Blickfeld: about 80), keystone 0.977 / rad,
+# Mirror geometry of the Cube 1 fitted to pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc (all 10 frames agree
+# to 1e-4) with recording_stats.fit_pattern: horizontal swing 79.68 deg (Blickfeld: about 80), keystone 0.977 / rad,
 # vertical ramp 0.527 lines ahead of the line clock; mirror frequency 147.33 Hz (frame period 0.1222 s).
 CUBE1_GEOMETRY = dict(horizontal_swing_deg=79.68, keystone_per_rad=0.977, ramp_lead_lines=0.527)
 

@@ -8,7 +8,7 @@ The story, one stage per line (each stage's wall time goes into the report):
    seed), and the held-out frames as they are (`empty`: nobody in them), all in their ground frame;
 3. config: the shipped SECOND config with the site's grid (grid.fitted_range over the walkable area, for every
    profile) and these sources, written as <out>/site.yaml (it is also what `memslidar detect --cfg` takes);
-4. train and test it (reproduce.run_model: AP 3D at IoU 0.5 on the composited held-out frames);
+4. train and test it (runs.run_model: AP 3D at IoU 0.5 on the composited held-out frames);
 5. false alarms: `memslidar detect` over the empty held-out frames with this model and with each bundled
    checkpoint given (--compare): detections per frame at the tracker's min_score, confirmed tracks per minute;
 6. figure and report: <out>/report.md, results.json, site_detections.png.
@@ -31,14 +31,14 @@ from pcdet_memslidar.datasets.mixing import Source, source_counts
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_frames
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.evaluation.report import HEADLINE, environment, json_safe, write_report
+from pcdet_memslidar.experiments.report import HEADLINE, environment, json_safe, write_report
+from pcdet_memslidar.experiments.runs import RUN_CONFIG, RUN_FILE, StageClock, run_model
 from pcdet_memslidar.grid import fitted_range, xy_cell_multiple
 from pcdet_memslidar.io.importer import import_frames, list_frames
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.monitor.detect import DetectOptions, detect, resolve_format
 from pcdet_memslidar.monitor.tracker import TrackerConfig
-from pcdet_memslidar.reproduce import RUN_CONFIG, RUN_FILE, StageClock, run_model
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.train import final_checkpoint
 from pcdet_memslidar.sim.composite import estimate_background_mount, read_background

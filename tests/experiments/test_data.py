@@ -6,16 +6,9 @@ import pytest
 
 from pcdet_memslidar.datasets.mixing import Source, split_sources
 from pcdet_memslidar.errors import ConfigError, OutputError
+from pcdet_memslidar.experiments.reproduce import RUNS, frames_needed, model_config, prepare_domain, reproduce
+from pcdet_memslidar.experiments.runs import check_run_config, runs_at_once
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
-from pcdet_memslidar.reproduce import (
-    RUNS,
-    check_run_config,
-    frames_needed,
-    model_config,
-    prepare_domain,
-    reproduce,
-    runs_at_once,
-)
 from pcdet_memslidar.sim.writer import SETTINGS_FILE
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.config import load_config, profile_settings
-from pcdet_memslidar.evaluation.report import (
+from pcdet_memslidar.experiments.report import (
     gain_over_reference,
     order_statement,
     render_report,

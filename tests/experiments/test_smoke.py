@@ -14,8 +14,9 @@ import pytest
 from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.evaluation import ap_summary, evaluate
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.evaluation.report import table2, table3
-from pcdet_memslidar.reproduce import MODELS, RUNS, model_config, reproduce, train_detector
+from pcdet_memslidar.experiments.report import table2, table3
+from pcdet_memslidar.experiments.reproduce import MODELS, RUNS, model_config, reproduce
+from pcdet_memslidar.experiments.runs import train_detector
 from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 

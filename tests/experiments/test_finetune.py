@@ -4,7 +4,7 @@ import json
 import pytest
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.reproduce import model_config, reproduce
+from pcdet_memslidar.experiments.reproduce import model_config, reproduce
 from pcdet_memslidar.runtime import train_loop
 from pcdet_memslidar.runtime.pretrain import split_stages
 

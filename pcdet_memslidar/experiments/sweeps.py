@@ -6,7 +6,7 @@
   fixed pool of synthetic frames (half of MIX.TOTAL, M3's share); every point trains for the optimizer steps of
   the profile's recipe (epochs = NUM_EPOCHS x MIX.TOTAL / its frames, rounded), so small sets are not starved:
   how many real annotations the synthetic frames replace at equal AP (annotations_replaced).
-A point is one ordinary training run (reproduce.run_model: runtime.train, then runtime.predict on the test split)
+A point is one ordinary training run (runs.run_model: runtime.train, then runtime.predict on the test split)
 in out/points/<point>/seed_<k>, so any job runner can train points on other machines with `memslidar train` and the
 config that run folder's config.json holds. A finished run is read back from its run.json: an interrupted sweep
 resumes where it stopped. Results: out/results.json, out/report.md and out/<sweep>.png.
@@ -25,19 +25,10 @@ from pcdet_memslidar.config import profile_settings
 from pcdet_memslidar.datasets.mixing import source_counts
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_sweep
-from pcdet_memslidar.evaluation.report import HEADLINE, ap_text, environment, json_safe, summarise_runs, write_report
+from pcdet_memslidar.experiments.report import HEADLINE, ap_text, environment, json_safe, summarise_runs, write_report
+from pcdet_memslidar.experiments.reproduce import RUNS, frames_needed, model_config, prepare_data
+from pcdet_memslidar.experiments.runs import StageClock, check_run_options, run_jobs, runs_at_once, training_jobs
 from pcdet_memslidar.io.layout import KittiLayout
-from pcdet_memslidar.reproduce import (
-    RUNS,
-    StageClock,
-    check_run_options,
-    frames_needed,
-    model_config,
-    prepare_data,
-    run_jobs,
-    runs_at_once,
-    training_jobs,
-)
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.utils.atomic import refuse_overlap
 

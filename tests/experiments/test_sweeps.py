@@ -4,12 +4,18 @@ import json
 
 import pytest
 
-from pcdet_memslidar import reproduce as reproduce_module
 from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.datasets.mixing import resolve_sources
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.reproduce import model_config
-from pcdet_memslidar.sweeps import annotations_replaced, point_config, ratio_points, real_budget_points, sweep
+from pcdet_memslidar.experiments import runs as runs_module
+from pcdet_memslidar.experiments.reproduce import model_config
+from pcdet_memslidar.experiments.sweeps import (
+    annotations_replaced,
+    point_config,
+    ratio_points,
+    real_budget_points,
+    sweep,
+)
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -66,7 +72,7 @@ def test_a_bad_grid_names_the_fix(tmp_path):
 
 def test_smoke_sweep_writes_its_table_and_figure_and_resumes(tmp_path, monkeypatch):
     out, data = tmp_path / "sweep", tmp_path / "data"
-    real_predict, calls = reproduce_module.predict, []
+    real_predict, calls = runs_module.predict, []
 
     def interrupted_predict(*args, **kwargs):  # the second point is killed after its training
         calls.append(args[1])
@@ -74,7 +80,7 @@ def test_smoke_sweep_writes_its_table_and_figure_and_resumes(tmp_path, monkeypat
             raise KeyboardInterrupt
         return real_predict(*args, **kwargs)
 
-    monkeypatch.setattr(reproduce_module, "predict", interrupted_predict)
+    monkeypatch.setattr(runs_module, "predict", interrupted_predict)
     with pytest.raises(KeyboardInterrupt):
         sweep("ratio", "smoke", 1, out, data, jobs=1, grid=[0, 100])
     first = out / "points" / "sim_000" / "seed_0"
@@ -83,7 +89,7 @@ def test_smoke_sweep_writes_its_table_and_figure_and_resumes(tmp_path, monkeypat
     stamps = {path: path.stat().st_mtime_ns for path in (first / "run.json", *second.glob("ckpt/*.pth"))}
     assert len(stamps) == 2  # the first point's result and the second point's checkpoint
 
-    monkeypatch.setattr(reproduce_module, "predict", real_predict)
+    monkeypatch.setattr(runs_module, "predict", real_predict)
     assert memslidar(["sweep", "ratio", "--grid", "0", "100", "--profile", "smoke", "--out", str(out),
                       "--data-root", str(data), "--jobs", "1"]) == 0
     assert all(path.stat().st_mtime_ns == stamp for path, stamp in stamps.items())  # nothing trained again

@@ -1,7 +1,7 @@
 """The reproduction report: its parts (run scores, model entries, environment, figures), results.json
 (machine-readable) and report.md (Tables 2 and 3 beside the paper's).
 
-`results` is one JSON-ready dict (assembled by pcdet_memslidar.reproduce from the parts here):
+`results` is one JSON-ready dict (assembled by pcdet_memslidar.experiments.reproduce from the parts here):
     profile, profile_settings ['KEY.SUB value', ...] (what the profile sets: config.profile_settings),
     overrides [KEY, VALUE, ...] (--set), seeds [int], command, date (ISO), wall_seconds,
     environment {package, python, libraries {name: version}, machine {cpu, cores, torch_threads, gpu}},
@@ -28,11 +28,7 @@ import numpy as np
 import torch
 
 from pcdet_memslidar import __version__
-from pcdet_memslidar.io.kitti import read_points
-from pcdet_memslidar.utils.atomic import write_text
-from pcdet_memslidar.utils.cores import available_cores
-
-from .figures import (
+from pcdet_memslidar.evaluation.figures import (
     SCORE_THRESHOLD,
     choose_example_frames,
     plot_ap_vs_time,
@@ -40,8 +36,11 @@ from .figures import (
     plot_pr_curves,
     plot_training_curves,
 )
-from .folders import CLASS_NAME, evaluate_folders, read_label_folder
-from .metrics import ap_summary
+from pcdet_memslidar.evaluation.folders import CLASS_NAME, evaluate_folders, read_label_folder
+from pcdet_memslidar.evaluation.metrics import ap_summary
+from pcdet_memslidar.io.kitti import read_points
+from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.cores import available_cores
 
 # The paper's Table 2 (synthetic, real frames of each training set, before the 70/30 split) and Table 3 (AP, IoU 0.5)
 PAPER_COUNTS = {"M1": {"sim": 0, "real": 2100}, "M2": {"sim": 2100, "real": 0},
