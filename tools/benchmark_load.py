@@ -26,6 +26,8 @@ SETTINGS = {  # name -> environment of the measured process (a variable set to N
     "libgomp default (spin, then sleep)": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None},
     "OMP_WAIT_POLICY=ACTIVE (spin)": {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": None},
     "OMP_WAIT_POLICY=PASSIVE (sleep)": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None},
+    "GOMP_SPINCOUNT=10000": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "10000"},
+    "GOMP_SPINCOUNT=1000": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"},
 }
 BUSY = "while True:\n    pass\n"
 
@@ -77,13 +79,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--steps", type=int, default=6, help="timed training steps of 2 frames (median)")
     parser.add_argument("--output", default="output/benchmark/load_benchmark.json")
+    parser.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS),
+                        metavar="SETTING", help="the settings to measure (default: all)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(measure(args)))
         return 0
     rows = []
-    for name, env_changes in SETTINGS.items():
+    for name in args.settings:
+        env_changes = SETTINGS[name]
         idle = run_setting(env_changes, args)
         row = {"setting": name, "idle": idle}
         for busy in args.busy:
@@ -96,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
                     process.wait()
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
-    cores = os.cpu_count()
+    cores = available_cores()
     print(f"\n{cores} cores, {args.threads} torch threads, {args.cfg} profile {args.profile}; median of {args.frames} "
           f"frames / {args.steps} steps; ratio = loaded / idle of the same setting\n")
     header = ["setting", "idle infer ms", "idle step ms"]

@@ -57,7 +57,7 @@ Z_RANGES = {"paper": (-0.5, 2.5)}  # z of the shipped paper grid; the profiles' 
 # asymmetric room turned about the sensor leaves its grid). Training settings of the quick profile for a site, chosen
 # on the validation part of the composited training frames (docs/sites.md, "How the site recipe was chosen").
 SITE_DISABLED_AUGMENTATIONS = ["gt_sampling", "random_world_flip", "random_world_rotation"]
-SITE_QUICK_OPTIMIZATION = {"LR": 0.0005, "NUM_EPOCHS": 12}
+SITE_QUICK_OPTIMIZATION = {"LR": 0.0005, "NUM_EPOCHS": 16}
 TRACKER_MIN_SCORE = TrackerConfig().min_score  # detections below it are neither tracked nor reported
 
 
