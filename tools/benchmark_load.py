@@ -1,14 +1,16 @@
 """Speed under load: the quick model's inference (ms/frame) and training step (ms) alone on the machine and with
-busy processes beside it, for each OpenMP wait policy, measured in one run.
+busy processes beside it, as shipped and with other OpenMP settings, measured in one run.
 
     python tools/benchmark_load.py                       # 3 busy processes, quick profile of cfgs/m3.yaml
     python tools/benchmark_load.py --busy 1 3 --frames 20
 
 An edge box shares its cores. OpenMP threads (torch's and numba's share one libgomp pool) wait for each other at
 the end of every parallel region; libgomp's default lets a waiting thread spin, which on a busy machine takes the
-core from the very thread it waits for. Each setting runs in a fresh process (the policy is read when libgomp
-loads), first idle, then with the busy processes (pure-Python loops) started by this script; ratios are loaded /
-idle of the same setting. Prints a Markdown table; JSON to output/benchmark/load_benchmark.json.
+core from the very thread it waits for. As shipped, the package shortens that spin (pcdet_memslidar/__init__.py) and
+inference takes only the cores no other process is using (runtime.common.threads_giving_way). Each setting runs in a
+fresh process (libgomp reads its settings when it loads), first idle, then with the busy processes (pure-Python
+loops) started by this script; ratios are loaded / idle of the same setting. Prints a Markdown table; JSON to
+output/benchmark/load_benchmark.json.
 """
 from __future__ import annotations
 
@@ -17,29 +19,35 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
-SETTINGS = {  # name -> environment of the measured process (a variable set to None is removed)
-    "libgomp default (spin, then sleep)": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None},
-    "OMP_WAIT_POLICY=ACTIVE (spin)": {"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": None},
-    "OMP_WAIT_POLICY=PASSIVE (sleep)": {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None},
-    "GOMP_SPINCOUNT=10000": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "10000"},
-    "GOMP_SPINCOUNT=1000": {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"},
+SETTINGS = {  # name -> (environment of the measured process (None removes a variable), inference threads give way)
+    "as shipped: GOMP_SPINCOUNT 10000, inference threads give way": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None},
+                                                                      True),
+    "before: libgomp's default spin count, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "300000"},
+                                                           False),
+    "OMP_WAIT_POLICY=PASSIVE, fixed threads": ({"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None}, False),
+    "GOMP_SPINCOUNT 10000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None}, False),
+    "GOMP_SPINCOUNT 1000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"}, False),
 }
 BUSY = "while True:\n    pass\n"
 
 
 def measure(args) -> dict:
-    """In this process: {'infer_ms', 'train_step_ms', 'policy'} of the config's model (random weights, seed 0)."""
+    """In this process: {'infer_ms', 'train_step_ms', 'threads'} of the config's model (random weights, seed 0):
+    medians over frames (batch size 1, threads giving way before each frame with --give-way, as `memslidar detect`
+    and `test` do) and over training steps (threads fixed: the training's results depend on them)."""
+    import numpy as np
     import torch
-    from benchmark_model import frames_for, time_inference, time_train_step
+    from benchmark_model import frames_for, time_train_step
 
     from pcdet_memslidar.config import load_config
-    from pcdet_memslidar.models import build_network
-    from pcdet_memslidar.runtime.common import get_device, set_random_seed
+    from pcdet_memslidar.models import build_network, load_data_to_device
+    from pcdet_memslidar.runtime.common import get_device, set_random_seed, threads_giving_way
 
     torch.set_num_threads(args.threads)
     cfg = load_config(args.cfg, profile=args.profile)
@@ -47,21 +55,30 @@ def measure(args) -> dict:
     dataset, _ = frames_for(cfg, training=False, count=args.frames + args.warmup)
     set_random_seed(0)
     model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), dataset).to(device)
-    infer_ms, _ = time_inference(model, dataset, args.frames, args.warmup, device)
+    model.eval()
+    times, threads = [], []
+    with threads_giving_way() as give_way, torch.no_grad():
+        for index in range(args.warmup + args.frames):
+            batch = load_data_to_device(dataset.collate_batch([dataset[index % len(dataset)]]), device)
+            threads.append(give_way() if args.give_way else torch.get_num_threads())
+            start = time.perf_counter()
+            model(batch)
+            times.append((time.perf_counter() - start) * 1000)
     train_set, _ = frames_for(cfg, training=True, count=2 * args.steps + 2)
     model.train()
     step_ms = time_train_step(model, train_set, cfg, 2, args.steps, device)
-    return {"infer_ms": infer_ms, "train_step_ms": step_ms, "policy": os.environ.get("OMP_WAIT_POLICY", "default")}
+    return {"infer_ms": float(np.median(times[args.warmup:])), "train_step_ms": step_ms,
+            "threads": float(np.mean(threads[args.warmup:]))}
 
 
-def run_setting(env_changes: dict, args) -> dict:
+def run_setting(env_changes: dict, give_way: bool, args) -> dict:
     """measure() in a fresh process with `env_changes` applied to this environment."""
     env = {**os.environ}
     for key, value in env_changes.items():
         env.pop(key, None) if value is None else env.__setitem__(key, value)
     command = [sys.executable, __file__, "--child", "--cfg", args.cfg, "--profile", args.profile, "--threads",
                str(args.threads), "--frames", str(args.frames), "--warmup", str(args.warmup), "--steps",
-               str(args.steps)]
+               str(args.steps), *(["--give-way"] if give_way else [])]
     done = subprocess.run(command, env=env, capture_output=True, text=True, check=False)
     if done.returncode:
         raise RuntimeError(f"measuring failed:\n{done.stderr[-3000:]}")
@@ -82,19 +99,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS),
                         metavar="SETTING", help="the settings to measure (default: all)")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--give-way", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
         print(json.dumps(measure(args)))
         return 0
     rows = []
     for name in args.settings:
-        env_changes = SETTINGS[name]
-        idle = run_setting(env_changes, args)
+        env_changes, give_way = SETTINGS[name]
+        idle = run_setting(env_changes, give_way, args)
         row = {"setting": name, "idle": idle}
         for busy in args.busy:
             load = [subprocess.Popen([sys.executable, "-c", BUSY]) for _ in range(busy)]
             try:
-                row[f"busy_{busy}"] = run_setting(env_changes, args)
+                row[f"busy_{busy}"] = run_setting(env_changes, give_way, args)
             finally:
                 for process in load:
                     process.kill()

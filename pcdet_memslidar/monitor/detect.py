@@ -35,6 +35,7 @@ from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.plots import plot_tracks_frame
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
+from pcdet_memslidar.runtime.common import threads_giving_way
 from pcdet_memslidar.runtime.predict import load_detector
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
@@ -145,11 +146,14 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()
-    with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines:
+    with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines, \
+            threads_giving_way() as give_way:  # an edge box shares its cores: fewer threads when others run
         bar = progress_bar(total=len(frames), desc="detect", unit="frame")
         for first in range(0, len(frames), batch_size):
             batch = frames[first:first + batch_size]
             clouds = _read(batch, mount, seconds, counts)  # 1. read and normalise
+            if torch.device(device).type == "cpu":
+                give_way()
             predictions = _infer(model, voxeliser, clouds, first, device, seconds, counts)  # 2. voxelise, infer
             for index, frame, points, (boxes, scores) in zip(range(first, first + len(batch)), batch, clouds,
                                                              predictions):

@@ -1,14 +1,16 @@
 """Process set-up shared by training and testing: seeds, torch threads, data-loader workers, device, logger."""
 from __future__ import annotations
 
+import contextlib
 import logging
 import random
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 import torch
 
-from pcdet_memslidar.utils.cores import available_cores
+from pcdet_memslidar.utils.cores import available_cores, runnable_elsewhere
 
 
 def set_random_seed(seed: int) -> None:
@@ -59,3 +61,24 @@ def create_logger(log_file: str | Path | None = None, rank: int = 0, name: str =
         handler.setFormatter(formatter)
         logger.addHandler(handler)
     return logger
+
+
+@contextlib.contextmanager
+def threads_giving_way() -> Iterator[Callable[[], int]]:
+    """For inference loops on a shared machine: yields adapt(), which before a batch sets torch's threads (and
+    through models.rulebook numba's) to the cores no other process is using, between 1 and the count at entry, and
+    returns it; leaving the block restores that count. OpenMP threads wait for each other at every parallel region,
+    so on a busy machine fewer threads than cores are faster (tools/benchmark_load.py). Inference outputs differ
+    between thread counts only by float rounding (2e-10 on the quick model's head outputs)."""
+    limit = torch.get_num_threads()
+
+    def adapt() -> int:
+        threads = max(1, min(limit, available_cores() - runnable_elsewhere()))
+        if threads != torch.get_num_threads():
+            torch.set_num_threads(threads)
+        return threads
+
+    try:
+        yield adapt
+    finally:
+        torch.set_num_threads(limit)

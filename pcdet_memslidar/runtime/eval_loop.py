@@ -11,6 +11,7 @@ import torch
 
 from pcdet_memslidar.datasets.dataset import iterate_batches
 from pcdet_memslidar.models import load_data_to_device
+from pcdet_memslidar.runtime.common import threads_giving_way
 from pcdet_memslidar.runtime.distributed import get_dist_info, merge_results_dist
 from pcdet_memslidar.utils.atomic import write_bytes
 from pcdet_memslidar.utils.progress import progress_bar
@@ -32,18 +33,23 @@ def eval_one_epoch(cfg, model, dataloader, epoch_id, logger: logging.Logger | No
     det_annos, batch_times = [], []
     model.eval()
     logger.info(f"*************** EPOCH {epoch_id} EVALUATION *****************")
-    for batch in progress_bar(iterate_batches(dataloader), enabled=rank == 0, total=len(dataloader), desc="eval",
-                              leave=False):
-        load_data_to_device(batch, device)
-        start = time.perf_counter()
-        with torch.no_grad():
-            pred_dicts, recall_dict = model(batch)
-        if torch.device(device).type == "cuda":
-            torch.cuda.synchronize(device)
-        batch_times.append(((time.perf_counter() - start) * 1000.0, batch["batch_size"]))
-        for key in recall:
-            recall[key] += recall_dict.get(key, 0)
-        det_annos += dataset.generate_prediction_dicts(batch, pred_dicts, class_names, output_path=final_output_dir)
+    batches = progress_bar(iterate_batches(dataloader), enabled=rank == 0, total=len(dataloader), desc="eval",
+                           leave=False)
+    with threads_giving_way() as give_way:  # on a CPU shared with other processes, fewer threads are faster
+        for batch in batches:
+            load_data_to_device(batch, device)
+            if torch.device(device).type == "cpu":
+                give_way()
+            start = time.perf_counter()
+            with torch.no_grad():
+                pred_dicts, recall_dict = model(batch)
+            if torch.device(device).type == "cuda":
+                torch.cuda.synchronize(device)
+            batch_times.append(((time.perf_counter() - start) * 1000.0, batch["batch_size"]))
+            for key in recall:
+                recall[key] += recall_dict.get(key, 0)
+            det_annos += dataset.generate_prediction_dicts(batch, pred_dicts, class_names,
+                                                           output_path=final_output_dir)
     timed = batch_times[1:] if len(batch_times) > 1 else batch_times
     infer_time_ms = sum(t for t, _ in timed) / max(1, sum(n for _, n in timed))
     if dist_test:

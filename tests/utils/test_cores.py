@@ -1,0 +1,49 @@
+"""Cores on a shared machine: the count of other processes' runnable threads, and inference threads that give way to
+them and come back."""
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from pcdet_memslidar.runtime import common
+from pcdet_memslidar.utils import cores
+
+
+def test_running_threads_reads_the_state_after_the_name_even_with_parentheses_in_it(tmp_path):
+    files = []
+    for index, line in enumerate(["12 (python) R 1 12", "13 (a) S (b) S 1 13", "14 (pt_main_thread) S 1",
+                                  "15 (x) R) R 1 15"]):
+        files.append(tmp_path / f"{index}.stat")
+        files[-1].write_text(line)
+    assert cores._running_threads(files + [tmp_path / "gone.stat"]) == 2  # 12 and 15 run; a thread that ended
+
+
+def test_runnable_elsewhere_is_a_count_and_zero_without_proc(monkeypatch):
+    assert cores.runnable_elsewhere() >= 0
+    monkeypatch.setattr(cores.os, "listdir", lambda path: (_ for _ in ()).throw(FileNotFoundError(path)))
+    assert cores.runnable_elsewhere() == 0
+
+
+@pytest.mark.parametrize("elsewhere, expected", [(0, 2), (1, 1), (3, 1)])
+def test_inference_threads_give_way_to_other_processes_and_come_back(monkeypatch, elsewhere, expected):
+    monkeypatch.setattr(common, "available_cores", lambda: 2)
+    monkeypatch.setattr(common, "runnable_elsewhere", lambda: elsewhere)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with common.threads_giving_way() as give_way:
+            assert give_way() == expected == torch.get_num_threads()
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("given, expected", [(None, "10000"), ("500", "500")])
+def test_the_package_shortens_libgomps_spin_unless_the_user_set_it(given, expected):
+    env = {key: value for key, value in os.environ.items() if key != "GOMP_SPINCOUNT"}
+    env.update({} if given is None else {"GOMP_SPINCOUNT": given})
+    done = subprocess.run([sys.executable, "-c", "import os, pcdet_memslidar; print(os.environ['GOMP_SPINCOUNT'])"],
+                          env=env, capture_output=True, text=True, timeout=60, check=True)
+    assert done.stdout.strip() == expected
