@@ -60,9 +60,9 @@ def test_point_cloud_range_must_be_six_numbers(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("arguments, message", [
-    (["--batch_size", "0"], "--batch_size 0: must be a positive integer; pass 1 or more, or leave it out to use "
+    (["--batch_size", "0"], "--batch-size 0: must be a positive integer; pass 1 or more, or leave it out to use "
                             "OPTIMIZATION.BATCH_SIZE_PER_GPU of the config"),
-    (["--batch_size", "-2"], "--batch_size -2: must be a positive integer"),
+    (["--batch_size", "-2"], "--batch-size -2: must be a positive integer"),
     (["--set", "OPTIMIZATION.BATCH_SIZE_PER_GPU", "0"],
      "m3.yaml: OPTIMIZATION.BATCH_SIZE_PER_GPU is 0: it must be a positive integer; set it to 1 or more (in the "
      "config, its profile or --set OPTIMIZATION.BATCH_SIZE_PER_GPU N)"),

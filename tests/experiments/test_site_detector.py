@@ -13,7 +13,7 @@ from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.sim.site import load_site
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SITE = ROOT / "examples" / "blickfeld_room.yaml"
 RECORDING = ROOT / "pcdet_memslidar" / "assets" / "blickfeld" / "cube1_sample_2020.bfpc"
 
