@@ -33,6 +33,7 @@ SETTINGS = {  # name -> (environment of the measured process (None removes a var
     "OMP_WAIT_POLICY=PASSIVE, fixed threads": ({"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None}, False),
     "GOMP_SPINCOUNT 10000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None}, False),
     "GOMP_SPINCOUNT 1000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"}, False),
+    "GOMP_SPINCOUNT 1000, inference threads give way": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"}, True),
 }
 BUSY = "while True:\n    pass\n"
 
