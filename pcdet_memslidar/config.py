@@ -11,10 +11,11 @@ first, then to the working directory (`resolve_path`); after loading they hold a
 Profiles: `PROFILE` (default 'paper') names an entry of `PROFILES: {quick: {...}, smoke: {...}}` whose overrides
 `apply_profile` merges onto the config; 'paper' is the config as written unless PROFILES defines it.
 
-Known keys: every key a config file writes must be one of the shipped SECOND config (SCHEMA_FILE, with its dataset
-config; its values are the defaults, so the schema has no second copy of them) or of OPTIONAL_KEYS; the keys of a
-profile likewise. A typo fails at load with the file, line and close match. Not checked: a MODEL section whose NAME
-differs from the schema's (another OpenPCDet module, with its own keys) and mappings inside lists.
+Known keys: every key a config file writes must be one of the shipped model configs (SCHEMA_FILES: SECOND and
+CenterPoint, with their dataset config; their values are the defaults, so the schema has no second copy of them) or
+of OPTIONAL_KEYS; the keys of a profile likewise. A typo fails at load with the file, line and close match. Not
+checked: a MODEL section whose NAME no shipped config uses (another OpenPCDet module, with its own keys) and
+mappings inside lists.
 
 Public API:
     cfg_from_yaml_file(cfg_file, merge_to=None) -> EasyDict
@@ -53,8 +54,9 @@ _PACKAGE_DIR = Path(__file__).resolve().parent
 IN_CHECKOUT = (_PACKAGE_DIR.parent / "pyproject.toml").is_file() and (_PACKAGE_DIR.parent / "cfgs").is_dir()
 ROOT_DIR = _PACKAGE_DIR.parent if IN_CHECKOUT else Path.cwd()
 CONFIG_DIR = _PACKAGE_DIR.parent / "cfgs" if IN_CHECKOUT else _PACKAGE_DIR / "cfgs"
-SCHEMA_FILE = CONFIG_DIR / "memslidar_models" / "second_person.yaml"
-# Keys a config may write beyond SCHEMA_FILE's: optional keys whose defaults live in the code that reads them, and
+SCHEMA_FILE = CONFIG_DIR / "memslidar_models" / "second_person.yaml"  # the paper's model, the default everywhere
+SCHEMA_FILES = (SCHEMA_FILE, CONFIG_DIR / "memslidar_models" / "centerpoint_person.yaml")
+# Keys a config may write beyond SCHEMA_FILES': optional keys whose defaults live in the code that reads them, and
 # OpenPCDet's own keys for SECOND (kitti_dataset.yaml, second.yaml, its training loop) that our runtime ignores.
 OPTIONAL_KEYS = (
     "DATA_CONFIG.TEST_SOURCE.PATH", "DATA_CONFIG.TEST_SOURCE.DOMAIN", "DATA_CONFIG.TEST_SOURCE.SEED",
@@ -176,13 +178,27 @@ def _merge(config: dict, new: dict) -> None:
 
 @functools.cache
 def _schema() -> EasyDict:
-    """The known keys as a tree of mappings: SCHEMA_FILE (with its bases), plus OPTIONAL_KEYS (any value)."""
-    schema = _expand(_load_yaml_file(SCHEMA_FILE), SCHEMA_FILE, (SCHEMA_FILE,))
+    """The known keys as a tree of mappings: the union of SCHEMA_FILES (with their bases), plus OPTIONAL_KEYS (any
+    value). A NAME key holds the set of module names the shipped configs use there."""
+    schema = EasyDict()
+    for schema_file in SCHEMA_FILES:
+        _merge_schema(schema, _expand(_load_yaml_file(schema_file), schema_file, (schema_file,)))
     for dotted in OPTIONAL_KEYS:
         *parents, leaf = dotted.split(".")
         node = functools.reduce(dict.__getitem__, parents, schema)
         node[leaf] = None
     return schema
+
+
+def _merge_schema(schema: dict, config: dict) -> None:
+    """Add the keys of `config` to `schema` (mappings merge; NAME values gather into a set)."""
+    for key, value in config.items():
+        if key == "NAME":
+            schema[key] = schema.get(key, set()) | {value}
+        elif isinstance(value, dict):
+            _merge_schema(schema.setdefault(key, {}), value)
+        else:
+            schema[key] = value
 
 
 def _schema_at(at: tuple[str, ...]) -> dict | None:
@@ -198,7 +214,9 @@ def _check_keys(node: dict, schema: dict | None, path: Path, at: tuple[str, ...]
 
     node: the mapping at `keys` in the file `path`, which sits at key path `at` of the whole config.
     """
-    if schema is None or ((at + keys)[:1] == ("MODEL",) and node.get("NAME", schema.get("NAME")) != schema.get("NAME")):
+    names = schema.get("NAME") if isinstance(schema, dict) else None
+    if schema is None or ((at + keys)[:1] == ("MODEL",) and isinstance(names, set) and "NAME" in node
+                          and node["NAME"] not in names):
         return  # no schema here, or another OpenPCDet module with its own keys
     for key, value in node.items():
         if key == BASE_KEY:

@@ -1,4 +1,5 @@
-"""The voxel grid of a config: its cell counts, and the one rule for which grids SECOND takes.
+"""The voxel grid of a config: its cell counts, and the one rule for which grids the detectors take
+(VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> a dense head: SECOND and CenterPoint alike).
 
 The rule follows from the model's own settings (no torch here, so the config loader, the OpenPCDet launcher, the
 datasets and the model all use this one module):
@@ -7,10 +8,11 @@ datasets and the model all use this one module):
   depth left over into channels, so MAP_TO_BEV.NUM_BEV_FEATURES must be 128 x that depth (256: 40 to 55 z cells).
 - x and y: the sparse convs divide by 8 (rounding up) and BaseBEVBackbone by its LAYER_STRIDES; its
   UPSAMPLE_STRIDES bring every level to one stride, the head's (`bev_output_stride`), at which the anchors are laid
-  (ANCHOR_GENERATOR_CONFIG feature_map_stride, grid // stride). x and y must be multiples of 8 x prod(LAYER_STRIDES)
+  (ANCHOR_GENERATOR_CONFIG feature_map_stride, grid // stride) or the center head's targets are drawn
+  (TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE). x and y must be multiples of 8 x prod(LAYER_STRIDES)
   and of the head's stride, so that no stride rounds and the BEV map has the anchors' size (OpenPCDet issues #634,
   #666, #1162).
-- anchors: boxes folded to headings in [-pi/4, pi/4) (DATA_PROCESSOR fold_box_headings) take one anchor rotation, 0.
+- anchors: boxes folded into one form (DATA_PROCESSOR fold_box_headings) take one anchor rotation, 0.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import math
 import numpy as np
 
 from .errors import ConfigError
+from .geometry.boxes import FOLDS
 
 SPARSE_STRIDE = 8  # VoxelBackBone8x's downsampling in x and y
 SPARSE_OUTPUT_CHANNELS = 128  # VoxelBackBone8x's output channels, stacked per output z cell by HeightCompression
@@ -81,8 +84,8 @@ def bev_output_stride(backbone_2d_cfg) -> float:
     return levels[0] / (extra[0] if extra else 1.0)
 
 
-def check_second_grid(model_cfg, point_cloud_range, voxel_size) -> np.ndarray:
-    """(3,) int64 cell counts (x, y, z) of `point_cloud_range` in `voxel_size` [m] once SECOND as `model_cfg` (its
+def check_voxel_grid(model_cfg, point_cloud_range, voxel_size) -> np.ndarray:
+    """(3,) int64 cell counts (x, y, z) of `point_cloud_range` in `voxel_size` [m] once the detector of `model_cfg` (its
     MODEL section) is known to take them; ConfigError naming the settings and sizes that would fit otherwise."""
     point_cloud_range = config_numbers(point_cloud_range, 6, RANGE_KEY, RANGE_FORMAT)
     voxel_size = config_numbers(voxel_size, 3, VOXEL_KEY, VOXEL_FORMAT)
@@ -100,15 +103,15 @@ def check_second_grid(model_cfg, point_cloud_range, voxel_size) -> np.ndarray:
     span = point_cloud_range[3:] - point_cloud_range[:3]
     raise ConfigError(
         f"the voxel grid {cells.tolist()} (x, y, z cells of range {_listed(point_cloud_range)}, span "
-        f"{np.round(span, 4).tolist()} m, voxel {_listed(voxel_size)}) does not fit SECOND: z needs {z_cells[0]} to "
-        f"{z_cells[1]} cells (MAP_TO_BEV.NUM_BEV_FEATURES {num_bev_features} = {SPARSE_OUTPUT_CHANNELS} channels x "
-        f"the depth VoxelBackBone8x leaves) and x, y multiples of {multiple} (stride {SPARSE_STRIDE} x "
-        f"BACKBONE_2D.LAYER_STRIDES {layer_strides}, and the head's stride {head_stride}). "
+        f"{np.round(span, 4).tolist()} m, voxel {_listed(voxel_size)}) does not fit the network: z needs "
+        f"{z_cells[0]} to {z_cells[1]} cells (MAP_TO_BEV.NUM_BEV_FEATURES {num_bev_features} = "
+        f"{SPARSE_OUTPUT_CHANNELS} channels x the depth VoxelBackBone8x leaves) and x, y multiples of {multiple} "
+        f"(stride {SPARSE_STRIDE} x BACKBONE_2D.LAYER_STRIDES {layer_strides}, and the head's stride {head_stride}). "
         f"{_fitting_sizes(point_cloud_range, voxel_size, multiple, z_cells)}")
 
 
 def xy_cell_multiple(model_cfg) -> int:
-    """The number that SECOND as `model_cfg` (its MODEL section) needs the x and y cell counts to be multiples of:
+    """The number that the detector of `model_cfg` (its MODEL section) needs the x and y cell counts to be multiples of:
     stride 8 x BACKBONE_2D.LAYER_STRIDES, and the head's stride."""
     layer_strides = list(model_cfg.BACKBONE_2D.get("LAYER_STRIDES", [1]))
     return math.lcm(SPARSE_STRIDE * int(np.prod(layer_strides)), _head_stride(model_cfg))
@@ -117,7 +120,7 @@ def xy_cell_multiple(model_cfg) -> int:
 def fitted_range(extent_xy, z_range, voxel_xy: float, multiple: int) -> list[float]:
     """POINT_CLOUD_RANGE [x0, y0, z0, x1, y1, z1] [m] of the smallest grid that covers extent_xy (x0, y0, x1, y1)
     [m] with x and y spans of whole multiples of `multiple` voxels of voxel_xy [m], centred on the extent; z_range
-    (z0, z1) as given (a site's grid follows its floor and field of view, by the rule of check_second_grid)."""
+    (z0, z1) as given (a site's grid follows its floor and field of view, by the rule of check_voxel_grid)."""
     bounds = []
     for low, high in ((extent_xy[0], extent_xy[2]), (extent_xy[1], extent_xy[3])):
         cells = multiple * max(1, math.ceil((high - low) / voxel_xy / multiple - 1e-9))
@@ -128,8 +131,8 @@ def fitted_range(extent_xy, z_range, voxel_xy: float, multiple: int) -> list[flo
 
 
 def check_config_grid(cfg, where: str | None = None) -> np.ndarray | None:
-    """Check a config at load: the POINT_CLOUD_RANGE of an experiment or dataset config, and for a SECOND model
-    (BACKBONE_3D VoxelBackBone8x) its voxel grid (check_second_grid). Returns the cell counts (x, y, z), None for
+    """Check a config at load: the POINT_CLOUD_RANGE of an experiment or dataset config, and for a model on
+    VoxelBackBone8x (SECOND, CenterPoint) its voxel grid (check_voxel_grid). Returns the cell counts (x, y, z), None for
     other configs. Errors start with `where` (default: the config's CFG_FILE)."""
     try:
         return _check_grid(cfg)
@@ -150,16 +153,23 @@ def _check_grid(cfg) -> np.ndarray | None:
     voxel_size = next((step.VOXEL_SIZE for step in data_config.get("DATA_PROCESSOR", [])
                        if step.NAME == "transform_points_to_voxels"), None)
     if voxel_size is None:
-        raise ConfigError("DATA_CONFIG.DATA_PROCESSOR has no transform_points_to_voxels step, which SECOND needs")
+        raise ConfigError("DATA_CONFIG.DATA_PROCESSOR has no transform_points_to_voxels step, which "
+                          "VoxelBackBone8x needs")
     _check_folded_anchors(cfg.MODEL, data_config)
-    return check_second_grid(cfg.MODEL, data_config.POINT_CLOUD_RANGE, voxel_size)
+    return check_voxel_grid(cfg.MODEL, data_config.POINT_CLOUD_RANGE, voxel_size)
 
 
 def _check_folded_anchors(model_cfg, data_config) -> None:
-    """Boxes folded to headings in [-pi/4, pi/4) (DATA_PROCESSOR fold_box_headings) need one anchor rotation, 0: an
-    anchor turned by a quarter would have to regress every box through a quarter turn. ConfigError otherwise."""
-    if not any(step.NAME == "fold_box_headings" for step in data_config.get("DATA_PROCESSOR", [])):
+    """Boxes folded into one form (DATA_PROCESSOR fold_box_headings, FOLD one of geometry.boxes.FOLDS: headings in
+    [-45, 45) or [-90, 90) deg) need one anchor rotation, 0: an anchor turned by a quarter would have to regress
+    every box through a quarter turn. ConfigError otherwise, or for another FOLD."""
+    folds = [step for step in data_config.get("DATA_PROCESSOR", []) if step.NAME == "fold_box_headings"]
+    if not folds:
         return
+    for step in folds:
+        if step.get("FOLD", FOLDS[0]) not in FOLDS:
+            raise ConfigError(f"DATA_PROCESSOR fold_box_headings: FOLD is {step.FOLD!r}; use one of "
+                              f"{', '.join(FOLDS)}")
     for anchor in model_cfg.get("DENSE_HEAD", {}).get("ANCHOR_GENERATOR_CONFIG", []):
         if list(anchor["anchor_rotations"]) != [0]:
             raise ConfigError(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: anchor_rotations "
@@ -169,20 +179,26 @@ def _check_folded_anchors(model_cfg, data_config) -> None:
 
 
 def _head_stride(model_cfg) -> int:
-    """Voxels per anchor cell: BaseBEVBackbone's output stride, which every anchor class's feature_map_stride must
-    equal; ConfigError otherwise or when it is not a whole number of voxels."""
+    """Voxels per head cell: BaseBEVBackbone's output stride, which every anchor class's feature_map_stride (anchor
+    head) or TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE (center head) must equal; ConfigError otherwise or when it is
+    not a whole number of voxels."""
     backbone_2d = model_cfg.BACKBONE_2D
     stride = bev_output_stride(backbone_2d)
     settings = (f"BACKBONE_2D (LAYER_STRIDES {list(backbone_2d.get('LAYER_STRIDES', [1]))}, UPSAMPLE_STRIDES "
                 f"{list(backbone_2d.get('UPSAMPLE_STRIDES', []))})")
     if stride < 1 or stride % 1:
-        raise ConfigError(f"{settings} outputs stride {stride:g}: the anchors need a whole number of voxels per BEV "
+        raise ConfigError(f"{settings} outputs stride {stride:g}: the head needs a whole number of voxels per BEV "
                           f"cell; change UPSAMPLE_STRIDES")
-    for anchor in model_cfg.DENSE_HEAD.get("ANCHOR_GENERATOR_CONFIG", []):
-        if anchor["feature_map_stride"] != stride:
-            raise ConfigError(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: feature_map_stride is "
-                              f"{anchor['feature_map_stride']} but {settings} outputs stride {stride:g}: set "
-                              f"feature_map_stride {stride:g} or change UPSAMPLE_STRIDES")
+    head = model_cfg.DENSE_HEAD
+    declared = [(f"ANCHOR_GENERATOR_CONFIG {anchor['class_name']}: feature_map_stride", anchor["feature_map_stride"])
+                for anchor in head.get("ANCHOR_GENERATOR_CONFIG", [])]
+    if "FEATURE_MAP_STRIDE" in head.get("TARGET_ASSIGNER_CONFIG", {}):
+        declared.append(("DENSE_HEAD.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE",
+                         head.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE))
+    for key, value in declared:
+        if value != stride:
+            raise ConfigError(f"{key} is {value} but {settings} outputs stride {stride:g}: set it to {stride:g} or "
+                              f"change UPSAMPLE_STRIDES")
     return int(stride)
 
 

@@ -198,7 +198,7 @@ def test_unknown_keys_in_a_file_fail_at_load_with_file_line_and_close_match(proj
         load_config(top)
     nested = _write(project / "cfgs/models/nested.yaml", "MODEL:\n    DENSE_HEAD:\n        NUM_DIR_BIN: 2\n")
     with pytest.raises(ConfigError, match=r"nested\.yaml:3: unknown key MODEL\.DENSE_HEAD\.NUM_DIR_BIN; did you mean "
-                                          r"NUM_DIR_BINS\?"):
+                                          r"NUM_DIR_BINS, NUM_HM_CONV\?"):  # keys of both shipped heads
         cfg_from_yaml_file(nested)
     in_profile = _write(project / "cfgs/models/profile.yaml",
                         "_BASE_CONFIG_: base.yaml\nPROFILES:\n    fast: {OPTIMIZATION: {NUM_EPOCH: 1}}\n")
@@ -288,3 +288,17 @@ def test_set_reaches_into_an_optional_block_and_names_a_list_it_cannot_index():
         load_config(CFGS / "m3.yaml", ["DATA_CONFIG.DATA_PROCESSOR.0.NAME", "x"])
     assert str(error.value) == ("--set DATA_CONFIG.DATA_PROCESSOR.0.NAME: DATA_CONFIG.DATA_PROCESSOR is a list, not a "
                                 "mapping: --set replaces it whole (--set DATA_CONFIG.DATA_PROCESSOR VALUE)")
+
+
+@pytest.mark.parametrize("experiment", ["m1", "m2", "m3", "m4", "m5", "oracle"])
+@pytest.mark.parametrize("profile", ["paper", "quick", "smoke"])
+def test_each_centerpoint_experiment_differs_from_seconds_in_the_head_only(experiment, profile):
+    second = load_config(CFGS / f"{experiment}.yaml", profile=profile)
+    center = load_config(CFGS / "centerpoint" / f"{experiment}.yaml", profile=profile)
+    assert center.MODEL.NAME == "CenterPoint" and center.MODEL.DENSE_HEAD.NAME == "CenterHead"
+    for key in ("DATA_CONFIG", "OPTIMIZATION", "CLASS_NAMES", "PRETRAIN"):
+        assert second.get(key) == center.get(key), key
+    for section in ("VFE", "BACKBONE_3D", "MAP_TO_BEV", "BACKBONE_2D"):
+        assert second.MODEL[section] == center.MODEL[section], section
+    stride = center.MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE
+    assert [anchor["feature_map_stride"] for anchor in second.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG] == [stride]

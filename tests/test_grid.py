@@ -11,7 +11,7 @@ from pcdet_memslidar import openpcdet
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.grid import check_config_grid, check_second_grid, fitted_range, xy_cell_multiple
+from pcdet_memslidar.grid import check_config_grid, check_voxel_grid, fitted_range, xy_cell_multiple
 from pcdet_memslidar.models import build_network
 
 CFGS = Path(__file__).resolve().parents[1] / "cfgs"
@@ -30,28 +30,28 @@ def _quick(point_cloud_range, *sets):
 
 
 def test_paper_grid_fits_second():
-    assert check_second_grid(PAPER_MODEL, PAPER_RANGE, [0.08, 0.08, 0.075]).tolist() == [480, 576, 40]
-    assert check_second_grid(PAPER_MODEL, [2.56, -23.2, -0.5, 40.96, 23.2, 2.5], [0.05, 0.05, 0.075]).tolist() == \
+    assert check_voxel_grid(PAPER_MODEL, PAPER_RANGE, [0.08, 0.08, 0.075]).tolist() == [480, 576, 40]
+    assert check_voxel_grid(PAPER_MODEL, [2.56, -23.2, -0.5, 40.96, 23.2, 2.5], [0.05, 0.05, 0.075]).tolist() == \
         [768, 928, 40]
 
 
 def test_grid_rule_refuses_bad_z_and_non_multiple_cells_with_sizes_that_fit():
     with pytest.raises(ConfigError) as error:
-        check_second_grid(PAPER_MODEL, PAPER_RANGE, [0.08, 0.08, 0.1])  # 3.0 m / 0.1 = 30 z cells
+        check_voxel_grid(PAPER_MODEL, PAPER_RANGE, [0.08, 0.08, 0.1])  # 3.0 m / 0.1 = 30 z cells
     assert "[480, 576, 30]" in str(error.value)
     assert ("z needs 40 to 55 cells (MAP_TO_BEV.NUM_BEV_FEATURES 256 = 128 channels x the depth VoxelBackBone8x "
             "leaves) and x, y multiples of 16 (stride 8 x BACKBONE_2D.LAYER_STRIDES [1, 2], and the head's stride 8)"
             in str(error.value))
     assert "z: voxel 0.075 m or z max 3.5 m (40 cells; 40 to 55 fit)" in str(error.value)
     with pytest.raises(ConfigError) as error:  # 410 x cells: not a multiple of 16
-        check_second_grid(PAPER_MODEL, [0, -20.0, -0.5, 41.0, 20.0, 2.5], [0.1, 0.1, 0.075])
+        check_voxel_grid(PAPER_MODEL, [0, -20.0, -0.5, 41.0, 20.0, 2.5], [0.1, 0.1, 0.075])
     assert "[410, 400, 40]" in str(error.value)
     assert "x: voxel 0.0985577 m (416 cells) or x max 41.6 m (416 cells of 0.1 m)" in str(error.value)
     with pytest.raises(ConfigError, match="not a whole number of voxels"):
-        check_second_grid(PAPER_MODEL, PAPER_RANGE, [0.07, 0.08, 0.075])
-    assert check_second_grid(PAPER_MODEL, PAPER_RANGE, [0.075, 0.08, 0.075]).tolist() == [512, 576, 40]
+        check_voxel_grid(PAPER_MODEL, PAPER_RANGE, [0.07, 0.08, 0.075])
+    assert check_voxel_grid(PAPER_MODEL, PAPER_RANGE, [0.075, 0.08, 0.075]).tolist() == [512, 576, 40]
     with pytest.raises(ConfigError, match="NUM_BEV_FEATURES is 300: .* a positive multiple of 128"):
-        check_second_grid(EasyDict({**PAPER_MODEL, "MAP_TO_BEV": {"NUM_BEV_FEATURES": 300}}), PAPER_RANGE,
+        check_voxel_grid(EasyDict({**PAPER_MODEL, "MAP_TO_BEV": {"NUM_BEV_FEATURES": 300}}), PAPER_RANGE,
                           [0.08, 0.08, 0.075])
 
 
@@ -88,9 +88,9 @@ def test_a_stride_4_head_on_one_bev_level_takes_multiples_of_8():
     assert "x: voxel 0.102174 m (368 cells) or x max 39.36 m (368 cells of 0.1 m)" in message
     with pytest.raises(ConfigError, match=re.escape(
             f"{M3}: ANCHOR_GENERATOR_CONFIG Pedestrian: feature_map_stride is 4 but BACKBONE_2D (LAYER_STRIDES [1, 2], "
-            f"UPSAMPLE_STRIDES [1, 2]) outputs stride 8: set feature_map_stride 8 or change UPSAMPLE_STRIDES")):
+            f"UPSAMPLE_STRIDES [1, 2]) outputs stride 8: set it to 8 or change UPSAMPLE_STRIDES")):
         _quick(QUICK_RANGE, "MODEL.BACKBONE_2D.UPSAMPLE_STRIDES", "[1, 2]")
-    with pytest.raises(ConfigError, match=r"outputs stride 2.66667: the anchors need a whole number of voxels"):
+    with pytest.raises(ConfigError, match=r"outputs stride 2.66667: the head needs a whole number of voxels"):
         _quick(QUICK_RANGE, "MODEL.BACKBONE_2D.UPSAMPLE_STRIDES", "[3, 6]")
 
 
@@ -138,7 +138,7 @@ def test_a_sites_grid_is_the_smallest_that_covers_it_and_fits_second():
     assert xy_cell_multiple(quick.MODEL) == 16 and xy_cell_multiple(PAPER_MODEL) == 16
     fitted = fitted_range(extent, (0.1, 2.5), 0.1, 16)
     assert fitted == [1.1, -5.6, 0.1, 9.1, 2.4, 2.5]  # 7.0 x 6.5 m -> 80 x 80 cells, centred (half-even rounding)
-    assert check_second_grid(quick.MODEL, fitted, [0.1, 0.1, 0.06]).tolist() == [80, 80, 40]
+    assert check_voxel_grid(quick.MODEL, fitted, [0.1, 0.1, 0.06]).tolist() == [80, 80, 40]
     assert fitted_range(extent, (-0.5, 2.5), 0.05, 16) == [1.5, -5.25, -0.5, 8.7, 1.95, 2.5]  # 144 x 144 cells
     # a 0.1 m area: one multiple (1.6 m) around its centre 0.05, whose start -7.5 voxels rounds half-even to -8
     assert fitted_range((0.0, 0.0, 0.1, 0.1), (0.1, 2.5), 0.1, 16) == [-0.8, -0.8, 0.1, 0.8, 0.8, 2.5]

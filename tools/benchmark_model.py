@@ -1,7 +1,9 @@
-"""Benchmark SECOND on the CPU (or GPU): inference ms/frame and train-step ms per configuration, and a
-speed-vs-error table of variants of the quick recipe (BEV backbone width, head stride) with real AP.
+"""Benchmark the detectors on the CPU (or GPU): inference ms/frame and train-step ms per configuration (a step split
+into data, to device, forward, backward and optimizer), and a speed-vs-error table of variants of the quick recipe
+(BEV backbone width, head stride) with real AP.
 
     python tools/benchmark_model.py --cfg cfgs/m3.yaml                 # latency: quick + paper profiles
+    python tools/benchmark_model.py --cfg cfgs/m3.yaml cfgs/centerpoint/m3.yaml   # the two heads side by side
     python tools/benchmark_model.py --cfg cfgs/m3.yaml --variants      # + each variant trained with the budget
 
 Frames come from the config's data when it exists (generate it first), else from synthetic person frames over
@@ -27,6 +29,7 @@ from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.mixing import split_sources
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.experiments.runs import default_jobs, run_jobs
+from pcdet_memslidar.grid import bev_output_stride
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
@@ -37,13 +40,19 @@ from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
 # name -> changes to the profile's config: BEV NUM_FILTERS / NUM_UPSAMPLE_FILTERS, UPSAMPLE_STRIDES with the
-# anchors' feature_map_stride (the head's stride; anchors every stride x voxel)
+# head's stride (the anchors' feature_map_stride, or the center head's FEATURE_MAP_STRIDE)
 VARIANTS = {
     "recipe": {},
     "BEV width x2": {"width": 2.0},
     "BEV width x1/2": {"width": 0.5},
     "stride-8 head": {"upsample_strides": [1, 2], "head_stride": 8},
 }
+
+
+def config_name(cfg_file: str) -> str:
+    """'m3' for cfgs/m3.yaml, 'centerpoint/m3' for cfgs/centerpoint/m3.yaml."""
+    path = Path(cfg_file)
+    return path.stem if path.parent.name == "cfgs" else f"{path.parent.name}/{path.stem}"
 
 
 def voxel_step(cfg) -> dict:
@@ -57,8 +66,11 @@ def apply_variant(cfg, width=1.0, upsample_strides=None, head_stride=None):
     bev.NUM_FILTERS = [round(n * width) for n in bev.NUM_FILTERS]
     bev.NUM_UPSAMPLE_FILTERS = [round(n * width) for n in bev.NUM_UPSAMPLE_FILTERS]
     bev.UPSAMPLE_STRIDES = upsample_strides or bev.UPSAMPLE_STRIDES
-    for anchor in cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG:
+    head = cfg.MODEL.DENSE_HEAD
+    for anchor in head.get("ANCHOR_GENERATOR_CONFIG", []):
         anchor["feature_map_stride"] = head_stride or anchor["feature_map_stride"]
+    if "FEATURE_MAP_STRIDE" in head.get("TARGET_ASSIGNER_CONFIG", {}):
+        head.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE = head_stride or head.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE
     return cfg
 
 
@@ -112,21 +124,33 @@ def time_inference(model, dataset, frames: int, warmup: int, device) -> tuple[fl
     return float(np.median(times)), {name: float(np.median(ms)) for name, ms in parts.items()}
 
 
-def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) -> float:
-    """Median ms per training step (forward, backward, clip, Adam) on batches of `batch_size` frames."""
+def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) -> tuple[float, dict[str, float]]:
+    """Median ms per training step (forward, backward, clip, Adam) on batches of `batch_size` frames, and the median
+    ms of its phases: 'data' (reading, augmenting and voxelising the frames, collating; in training a loader worker
+    can do it beside the step), then train_one_step's 'to device', 'forward', 'backward', 'optimizer'."""
     optimizer = build_optimizer(model, cfg.OPTIMIZATION)
     scheduler = build_scheduler(optimizer, steps + 1, 1, -1, cfg.OPTIMIZATION)
-    times = []
-    for step in range(steps + 1):
-        frames = [dataset[(step * batch_size + i) % len(dataset)] for i in range(batch_size)]
-        batch = dataset.collate_batch(frames)
-        start = time.perf_counter()
-        train_one_step(model, optimizer, scheduler, batch, cfg.OPTIMIZATION.GRAD_NORM_CLIP, device)
+    times, phases = [], {}
+    marks = []
+
+    def phase_done(name: str) -> None:
         if device.type == "cuda":
             torch.cuda.synchronize(device)
-        if step:
-            times.append((time.perf_counter() - start) * 1000)
-    return float(np.median(times))
+        marks.append((name, time.perf_counter()))
+
+    for step in range(steps + 1):
+        marks.clear()
+        phase_done("start")
+        frames = [dataset[(step * batch_size + i) % len(dataset)] for i in range(batch_size)]
+        batch = dataset.collate_batch(frames)
+        phase_done("data")
+        train_one_step(model, optimizer, scheduler, batch, cfg.OPTIMIZATION.GRAD_NORM_CLIP, device,
+                       phase_done=phase_done)
+        if step:  # the first step warms up
+            times.append((marks[-1][1] - marks[1][1]) * 1000)
+            for (_, begin), (name, end) in zip(marks, marks[1:]):
+                phases.setdefault(name, []).append((end - begin) * 1000)
+    return float(np.median(times)), {name: float(np.median(ms)) for name, ms in phases.items()}
 
 
 def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dict]:
@@ -146,7 +170,7 @@ def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dic
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--cfg", default="cfgs/m3.yaml")
+    parser.add_argument("--cfg", nargs="+", default=["cfgs/m3.yaml"], help="one or more experiment configs")
     parser.add_argument("--profiles", nargs="+", default=["quick", "paper"])
     parser.add_argument("--threads", type=int, default=available_cores(), help="torch threads (default: free cores)")
     parser.add_argument("--frames", type=int, default=10, help="timed frames / steps per configuration")
@@ -171,30 +195,35 @@ def main(argv: list[str] | None = None) -> int:
         model = build_network(cfg.MODEL, len(cfg.CLASS_NAMES), dataset).to(device)
         model.set_precision(precision)
         row = {"config": name, "precision": precision, "voxel_xy_m": voxel_step(cfg).VOXEL_SIZE[0],
-               "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS),
-               "head_stride": cfg.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG[0]["feature_map_stride"], "frames": source,
+               "bev_filters": list(cfg.MODEL.BACKBONE_2D.NUM_FILTERS), "head": cfg.MODEL.DENSE_HEAD.NAME,
+               "head_stride": int(bev_output_stride(cfg.MODEL.BACKBONE_2D)), "frames": source,
                "params": sum(p.numel() for p in model.parameters())}
         row["infer_ms"], row["infer_ms_per_module"] = time_inference(model, dataset, args.frames, args.warmup, device)
         if precision == PRECISIONS[0]:  # training is fp32 whatever the inference precision
-            row["train_step_ms"] = time_train_step(model, dataset, cfg, args.batch_size, max(2, args.frames // 2),
-                                                   device)
+            train_frames, _ = frames_for(cfg, training=True, count=args.frames + args.warmup)
+            row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(
+                model, train_frames, cfg, args.batch_size, max(2, args.frames // 2), device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
-    for profile in args.profiles:
-        for precision in args.precisions:
-            measure(f"{Path(args.cfg).stem}/{profile}", load_config(args.cfg, args.set_cfgs, profile=profile),
-                    precision)
+    for cfg_file in args.cfg:
+        for profile in args.profiles:
+            for precision in args.precisions:
+                measure(f"{config_name(cfg_file)}/{profile}", load_config(cfg_file, args.set_cfgs, profile=profile),
+                        precision)
     if args.variants:
-        base = load_config(args.cfg, args.set_cfgs, profile=args.profile)
-        variants = {f"{args.profile} {name}": apply_variant(base, **changes) for name, changes in VARIANTS.items()}
+        variants = {}
+        for cfg_file in args.cfg:
+            base = load_config(cfg_file, args.set_cfgs, profile=args.profile)
+            variants |= {f"{config_name(cfg_file)} {args.profile} {name}": apply_variant(base, **changes)
+                         for name, changes in VARIANTS.items()}
         for name, cfg in variants.items():
             measure(name, cfg)
         trained = train_variants(variants, Path(args.output).parent / "variants", threads=1)
         for row in rows:
             row.update(trained.get(row["config"], {}))
 
-    header = ["config", "precision", "voxel_xy_m", "bev_filters", "head_stride", "params", "frames", "infer_ms",
+    header = ["config", "precision", "head", "voxel_xy_m", "bev_filters", "head_stride", "params", "frames", "infer_ms",
               "train_step_ms", "train_minutes", "val_AP3D_R40", "AP3D_R40"]
     print(f"\ndevice {device}, {args.threads} torch threads, batch {args.batch_size} for train steps, "
           f"median of {args.frames} frames\n")
@@ -209,6 +238,12 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         print(f"| {row['config']}, {row['precision']} | "
               + " | ".join(f"{row['infer_ms_per_module'][m]:.1f}" for m in modules) + " |")
+    trained_rows = [row for row in rows if "train_ms_per_phase" in row]
+    phases = list(trained_rows[0]["train_ms_per_phase"]) if trained_rows else []
+    print(f"\ntraining step ms per phase (medians, batch {args.batch_size})\n")
+    print("| config | " + " | ".join(phases) + " |\n|" + "---|" * (len(phases) + 1))
+    for row in trained_rows:
+        print(f"| {row['config']} | " + " | ".join(f"{row['train_ms_per_phase'][p]:.1f}" for p in phases) + " |")
     write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows}, indent=2))
     return 0
 

@@ -1,7 +1,7 @@
 """`memslidar reproduce`: the paper's M1-M4 experiment end to end (pcdet_memslidar.experiments.reproduce).
 
-    memslidar reproduce --profile quick [--models M ...] [--seeds K] [--out DIR] [--data-root DIR] [--jobs N]
-                        [--set KEY VALUE ...]
+    memslidar reproduce --profile quick [--models M ...] [--heads anchor center] [--seeds K] [--out DIR]
+                        [--data-root DIR] [--jobs N] [--set KEY VALUE ...]
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 from pcdet_memslidar.commands.options import add_experiment_arguments, add_profile, add_set, experiment_command
 from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.experiments.report import HEADLINE
-from pcdet_memslidar.experiments.reproduce import KNOWN_RUNS, RUNS, reproduce
+from pcdet_memslidar.experiments.reproduce import HEADS, KNOWN_RUNS, RUNS, reproduce
 
 BENCHMARK_RESULTS = Path("output/benchmark/model_benchmark.json")  # tools/benchmark_model.py's, relative to the repo
 
@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", default=list(RUNS), choices=list(KNOWN_RUNS),
                         help="the models to train and test (default: %(default)s; M5: pre-trained on sim, "
                              "fine-tuned on real, cfgs/m5.yaml)")
+    parser.add_argument("--heads", nargs="+", default=["anchor"], choices=list(HEADS),
+                        help="the dense heads to train each model with (default: %(default)s, SECOND's, the paper's; "
+                             "center: CenterPoint's, cfgs/centerpoint/)")
     add_experiment_arguments(parser, "models")
     parser.add_argument("--benchmark", type=Path, default=Path(global_cfg.ROOT_DIR) / BENCHMARK_RESULTS,
                         help="tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time "
@@ -32,9 +35,10 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path(global_cfg.ROOT_DIR) / "output" / "reproduce" / args.profile
     data_root = args.data_root.resolve() if args.data_root is not None else None
     models = [] if args.models == list(RUNS) else ["--models", *args.models]
-    command = experiment_command(["memslidar reproduce", *models], args)
+    heads = [] if args.heads == ["anchor"] else ["--heads", *args.heads]
+    command = experiment_command(["memslidar reproduce", *models, *heads], args)
     results = reproduce(args.profile, args.seeds, out.resolve(), data_root, args.workers, command, args.set_cfgs,
-                        args.jobs, args.benchmark, tuple(args.models))
+                        args.jobs, args.benchmark, tuple(args.models), tuple(args.heads))
     for model, entry in results["models"].items():
         print(f"{model}: {HEADLINE} {entry['mean'][HEADLINE]}  ms/frame {entry['mean']['ms_per_frame']:.1f}")
     print(f"report: {out / 'report.md'}")

@@ -10,16 +10,23 @@ RECALL_POSITIONS = {
 }
 
 
-def precision_recall_curve(scores: np.ndarray, is_tp: np.ndarray, num_gt: int) -> dict[str, np.ndarray]:
+def precision_recall_curve(scores: np.ndarray, is_tp: np.ndarray, num_gt: int,
+                           weights: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Curve of the detections kept at each distinct score threshold, best score first.
 
     scores (D,), is_tp (D,) bool of the counted detections (ignored ones already removed); num_gt counted ground
-    truths. Returns {'score': (T,), 'tp': (T,) int, 'fp': (T,) int, 'recall': (T,), 'precision': (T,)}: detections
-    with equal scores enter together, so ties never favour true positives.
+    truths. weights (D,) int >= 0, default 1: a detection counts `weight` times (its frame taken that many times, as
+    in a bootstrap resample), weight 0 leaves it out. Returns {'score': (T,), 'tp': (T,) int, 'fp': (T,) int,
+    'recall': (T,), 'precision': (T,)}: detections with equal scores enter together, so ties never favour true
+    positives.
     """
-    order = np.argsort(-np.asarray(scores, dtype=np.float64), kind="stable")
-    scores, is_tp = np.asarray(scores, dtype=np.float64)[order], np.asarray(is_tp, dtype=bool)[order]
-    tp, fp = np.cumsum(is_tp), np.cumsum(~is_tp)
+    scores, is_tp = np.asarray(scores, dtype=np.float64), np.asarray(is_tp, dtype=bool)
+    weights = np.ones(len(scores), dtype=np.int64) if weights is None else np.asarray(weights, dtype=np.int64)
+    kept = weights > 0
+    scores, is_tp, weights = scores[kept], is_tp[kept], weights[kept]
+    order = np.argsort(-scores, kind="stable")
+    scores, is_tp, weights = scores[order], is_tp[order], weights[order]
+    tp, fp = np.cumsum(weights * is_tp), np.cumsum(weights * ~is_tp)
     last_of_tie = np.append(scores[1:] != scores[:-1], True) if len(scores) else np.zeros(0, dtype=bool)
     tp, fp, scores = tp[last_of_tie], fp[last_of_tie], scores[last_of_tie]
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -55,6 +55,25 @@ def stack_class(annos: list[dict], class_name: str, with_score: bool, kind: str)
     return boxes, scores, np.asarray(counts, dtype=np.int64)
 
 
+def match_annos(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: float = 0.5,
+                iou_threshold_bev: float = 0.5, class_name: str = CLASS_NAME) -> dict:
+    """The `class_name` boxes of frame-aligned annotations, detections matched once per IoU kind (matching.py).
+
+    Returns {'gt_boxes': (G, 7), 'gt_counts': (F,), 'dt_boxes': (D, 7), 'dt_scores': (D,), 'dt_counts': (F,) boxes
+    per frame, 'matched': {'3D' | 'BEV': (D,) index into gt_boxes of each detection's ground truth, -1 for none}}.
+    """
+    if len(gt_annos) != len(dt_annos):
+        raise ValueError(f"{len(gt_annos)} ground-truth frames but {len(dt_annos)} detection frames: give one anno "
+                         "per frame")
+    gt_boxes, _, gt_counts = stack_class(gt_annos, class_name, with_score=False, kind="gt")
+    dt_boxes, dt_scores, dt_counts = stack_class(dt_annos, class_name, with_score=True, kind="dt")
+    dt_index, gt_index, iou_bev, iou_3d = pair_ious(dt_boxes, gt_boxes, dt_counts, gt_counts)
+    matched = {kind: greedy_match(dt_scores, len(gt_boxes), dt_index, gt_index, iou, threshold)
+               for kind, iou, threshold in (("3D", iou_3d, iou_threshold_3d), ("BEV", iou_bev, iou_threshold_bev))}
+    return {"gt_boxes": gt_boxes, "gt_counts": gt_counts, "dt_boxes": dt_boxes, "dt_scores": dt_scores,
+            "dt_counts": dt_counts, "matched": matched}
+
+
 def evaluate(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: float = 0.5,
              iou_threshold_bev: float = 0.5, class_name: str = CLASS_NAME,
              distance_bins=DISTANCE_BINS) -> dict:
@@ -65,18 +84,14 @@ def evaluate(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: float
     {'3D' | 'BEV': {'all' | bin: precision_recall_curve dict}}}. A bin (or data set) without ground truth has AP
     NaN, with a warning. Ground truth scored against itself gives exactly 1.0.
     """
-    if len(gt_annos) != len(dt_annos):
-        raise ValueError(f"evaluate: {len(gt_annos)} ground-truth frames but {len(dt_annos)} detection frames")
-    gt_boxes, _, gt_counts = stack_class(gt_annos, class_name, with_score=False, kind="gt")
-    dt_boxes, dt_scores, dt_counts = stack_class(dt_annos, class_name, with_score=True, kind="dt")
-    dt_index, gt_index, iou_bev, iou_3d = pair_ious(dt_boxes, gt_boxes, dt_counts, gt_counts)
+    matches = match_annos(gt_annos, dt_annos, iou_threshold_3d, iou_threshold_bev, class_name)
+    gt_boxes, dt_boxes, dt_scores = matches["gt_boxes"], matches["dt_boxes"], matches["dt_scores"]
     gt_range = np.hypot(gt_boxes[:, 0], gt_boxes[:, 1])
     dt_range = np.hypot(dt_boxes[:, 0], dt_boxes[:, 1])
     bins = {"all": (0.0, float("inf"))} | {bin_label(*limits): limits for limits in distance_bins}
 
     result: dict = {"num_gt": {}, "num_dt": {}, "pr_curves": {"3D": {}, "BEV": {}}}
-    for kind, iou, threshold in (("3D", iou_3d, iou_threshold_3d), ("BEV", iou_bev, iou_threshold_bev)):
-        matched = greedy_match(dt_scores, len(gt_boxes), dt_index, gt_index, iou, threshold)
+    for kind, matched in matches["matched"].items():
         matched_range = gt_range[np.maximum(matched, 0)] if len(gt_boxes) else np.zeros(len(matched))
         for label, (low, high) in bins.items():
             gt_in_bin = (gt_range >= low) & (gt_range < high)

@@ -10,9 +10,16 @@
     models {model id: {cfg, counts {source: {frames, train, val}},
                        runs [{seed, metrics {AP3D_R40, ..., AP3D_R40_0-10m, ..., ms_per_frame}, num_gt, num_dt,
                               predictions (folder, relative to the report)}],
-                       mean {metric: value}, std {metric: value}}}
+                       mean {metric: value}, std {metric: value},
+                       interval {metric: [low, high]}, difference_interval {other model id: {metric: [low, high]}}}},
+    intervals {level, resamples, seed, frames, seconds}.
 AP values are fractions in [0, 1] (None where undefined: no ground truth in a distance bin); gains over M1 are in
 percentage points, as the paper's Table 3 ("+17 %" for 0.10 -> 0.27).
+`interval`, `difference_interval` and `intervals` come from add_intervals (absent before it runs): bootstrap
+percentile intervals over the test frames (pcdet_memslidar/evaluation/bootstrap.py) of the seed-mean AP of each
+INTERVAL_METRICS (all distances), and of this model's seed-mean AP minus each other model's, with the same resampled
+frames for both (paired); `intervals` holds the confidence level, the number of resamples, the seed of the
+resampling, the number of test frames and the seconds it took.
 """
 from __future__ import annotations
 
@@ -21,6 +28,7 @@ import json
 import math
 import os
 import platform
+import time
 from importlib import metadata
 from pathlib import Path
 
@@ -28,6 +36,16 @@ import numpy as np
 import torch
 
 from pcdet_memslidar import __version__
+from pcdet_memslidar.evaluation.bootstrap import (
+    LEVEL,
+    RESAMPLES,
+    SEED,
+    bootstrap_ap,
+    check_level,
+    frame_matches,
+    percentile_interval,
+    resample_counts,
+)
 from pcdet_memslidar.evaluation.figures import (
     SCORE_THRESHOLD,
     choose_example_frames,
@@ -49,7 +67,9 @@ PAPER_AP = {"M1": 0.10, "M2": 0.27, "M3": 0.54, "M4": 0.45}
 PAPER_ORDER = ("M3", "M4", "M2", "M1")  # Table 3, best first
 HEADLINE = "AP3D_R40"  # compared with the paper's AP: 3D IoU 0.5, OpenPCDet's default 40 recall positions
 TABLE3_COLUMNS = ("AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11")
+INTERVAL_METRICS = TABLE3_COLUMNS  # bootstrap intervals of these (all distances)
 REFERENCE_MODEL = "M1"
+ORACLE = "oracle"  # in-domain training: Table 3 gives every model's difference to it
 LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
 
 
@@ -71,9 +91,10 @@ def summarise_runs(runs: list[dict]) -> tuple[dict, dict]:
     return mean, std
 
 
-def gain_over_reference(models: dict, metric: str = HEADLINE) -> dict[str, float | None]:
-    """{model: mean metric minus the reference model's (M1), in percentage points} (None where undefined)."""
-    reference = models.get(REFERENCE_MODEL, {}).get("mean", {}).get(metric)
+def gain_over_reference(models: dict, metric: str = HEADLINE, reference_model: str = REFERENCE_MODEL
+                        ) -> dict[str, float | None]:
+    """{model: mean metric minus the reference model's (default M1), in percentage points} (None where undefined)."""
+    reference = models.get(reference_model, {}).get("mean", {}).get(metric)
     gains = {}
     for name, model in models.items():
         value = model["mean"].get(metric)
@@ -136,17 +157,48 @@ def benchmark_entries(results: dict, benchmark_file: Path | None = None) -> list
     return entries
 
 
+def frame_predictions(pred_dir: Path, frame_ids: list[str]) -> list[dict]:
+    """Prediction annos of a label folder, one per frame id in order (a frame without a file: no detections)."""
+    saved = read_label_folder(pred_dir, with_score=True)
+    empty = {"name": np.zeros(0, dtype=str), "boxes_lidar": np.zeros((0, 7)), "score": np.zeros(0)}
+    return [saved.get(frame_id, empty) for frame_id in frame_ids]
+
+
+def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int = RESAMPLES, level: float = LEVEL,
+                  seed: int = SEED) -> None:
+    """Fill results['intervals'] and every model's 'interval' and 'difference_interval' (module docstring): the
+    bootstrap over the test frames of gt_dir, from the prediction folders of results' runs (relative to
+    report_dir), the same resampled frames for every model and seed."""
+    started = time.perf_counter()
+    check_level(level)
+    gt = read_label_folder(Path(gt_dir), with_score=False)
+    frame_ids = sorted(gt)
+    gt_annos = [gt[frame_id] for frame_id in frame_ids]
+    counts = resample_counts(len(frame_ids), resamples, seed)
+    samples = {}  # {model: {metric: (resamples,) seed-mean AP}}
+    for name, model in results["models"].items():
+        runs = [frame_matches(gt_annos, frame_predictions(Path(report_dir) / run["predictions"], frame_ids))
+                for run in model["runs"]]
+        samples[name] = {f"AP{kind}_{positions}": values for kind in ("3D", "BEV")
+                         for positions, values in bootstrap_ap([run[kind] for run in runs], counts).items()}
+    for name, model in results["models"].items():
+        model["interval"] = {metric: list(percentile_interval(samples[name][metric], level))
+                             for metric in INTERVAL_METRICS}
+        model["difference_interval"] = {
+            other: {metric: list(percentile_interval(samples[name][metric] - samples[other][metric], level))
+                    for metric in INTERVAL_METRICS}
+            for other in results["models"] if other != name}
+    results["intervals"] = {"level": level, "resamples": resamples, "seed": seed, "frames": len(frame_ids),
+                            "seconds": time.perf_counter() - started}
+
+
 def add_figures(results: dict, runs: dict, gt_dir: Path, velodyne_dir: Path, out: Path,
                 benchmark_file: Path | None = None) -> None:
     """Draw the report's figures into `out` from the runs {model: run with predictions, pr_curves, curve} (the
     first seed's) and fill results['figures'] and results['example_frames']."""
     gt = read_label_folder(gt_dir, with_score=False)
     frame_ids = sorted(gt)
-    predictions = {}
-    for name, run in runs.items():
-        saved = read_label_folder(out / run["predictions"], with_score=True)
-        empty = {"name": np.zeros(0, dtype=str), "boxes_lidar": np.zeros((0, 7)), "score": np.zeros(0)}
-        predictions[name] = [saved.get(frame_id, empty) for frame_id in frame_ids]
+    predictions = {name: frame_predictions(out / run["predictions"], frame_ids) for name, run in runs.items()}
     gt_boxes = [gt[frame_id]["boxes_lidar"][gt[frame_id]["name"] == CLASS_NAME] for frame_id in frame_ids]
     examples = choose_example_frames(gt_boxes, predictions)
     frames = [{"points": read_points(velodyne_dir / f"{frame_ids[e.index]}.bin"), "gt_boxes": gt_boxes[e.index],
@@ -164,15 +216,43 @@ def add_figures(results: dict, runs: dict, gt_dir: Path, velodyne_dir: Path, out
                                   "score_threshold": SCORE_THRESHOLD} for e in examples]
 
 
-def ap_text(mean: float | None, std: float | None, seeds: int) -> str:
-    """'0.291 ± 0.060' over several seeds, '0.291' for one, 'n/a' where undefined."""
+def ap_text(mean: float | None, std: float | None, seeds: int, interval: list | None = None) -> str:
+    """'0.291 ± 0.060' over several seeds, '0.291' for one, 'n/a' where undefined; with its bootstrap interval
+    (add_intervals) '0.291 [0.240, 0.342]'."""
     if mean is None:
         return "n/a"
-    return f"{mean:.3f} ± {std:.3f}" if seeds > 1 else f"{mean:.3f}"
+    return (f"{mean:.3f} ± {std:.3f}" if seeds > 1 else f"{mean:.3f}") + _interval_text(interval, "{:.3f}")
+
+
+def _interval_text(interval: list | None, number: str, scale: float = 1.0) -> str:
+    """' [low, high]' with both bounds formatted by `number` after multiplying by `scale`; '' without an interval."""
+    if interval is None or None in interval:
+        return ""
+    return " [" + ", ".join(number.format(scale * bound) for bound in interval) + "]"
 
 
 def _pp(value: float | None) -> str:
     return "n/a" if value is None else f"{value:+.1f}"
+
+
+def difference_text(models: dict, name: str, other: str, metric: str = HEADLINE) -> str:
+    """Mean `metric` of model `name` minus model `other`'s in percentage points, with the paired bootstrap interval
+    where there is one: '+4.1 [-1.2, +9.0]'."""
+    gain = gain_over_reference(models, metric, other)[name]
+    interval = models[name].get("difference_interval", {}).get(other, {}).get(metric)
+    return _pp(gain) + ("" if gain is None else _interval_text(interval, "{:+.1f}", 100.0))
+
+
+def order_sign(models: dict, a: str, b: str, metric: str = HEADLINE) -> str:
+    """How model a's mean `metric` stands to b's. With bootstrap intervals (add_intervals): '>' or '<' only where the
+    paired interval of a - b excludes 0, else '≈' (the intervals cannot order them); without: '>', '<' or '=' of
+    the means."""
+    interval = models[a].get("difference_interval", {}).get(b, {}).get(metric)
+    if interval is None:
+        mean_a, mean_b = models[a]["mean"][metric], models[b]["mean"][metric]
+        return ">" if mean_a > mean_b else "<" if mean_a < mean_b else "="
+    low, high = (math.nan if bound is None else bound for bound in interval)
+    return ">" if low > 0 else "<" if high < 0 else "≈"
 
 
 def _table(header: list[str], rows: list[list[str]]) -> list[str]:
@@ -221,27 +301,47 @@ def other_training_sets(results: dict) -> list[str]:
 
 
 def order_statement(results: dict, metric: str = HEADLINE) -> str:
-    """Whether this run's M1-M4 rank as in the paper (M3 > M4 > M2 > M1), and where the oracle stands."""
+    """Whether this run's M1-M4 rank as in the paper (M3 > M4 > M2 > M1), pair by pair, and where the oracle stands.
+
+    With bootstrap intervals (add_intervals) two models are ordered only where the paired interval of their
+    difference excludes 0 (order_sign); without, by their means.
+    """
     models, seeds = results["models"], len(results["seeds"])
     means = {name: models[name]["mean"].get(metric) for name in PAPER_ORDER if name in models}
     if len(means) < len(PAPER_ORDER) or any(value is None for value in means.values()):
         return "The paper's order cannot be checked: some of M1-M4 have no AP."
     order = sorted(means, key=means.get, reverse=True)
-    strict = all(means[a] > means[b] for a, b in zip(PAPER_ORDER, PAPER_ORDER[1:]))
-    verdict = "holds" if strict else "does not hold"
+    pairs = list(zip(PAPER_ORDER, PAPER_ORDER[1:]))
+    signs = [order_sign(models, a, b, metric) for a, b in pairs]
+    verdict = ("holds" if all(sign == ">" for sign in signs) else
+               "does not hold" if any(sign in "<=" for sign in signs) else "cannot be confirmed")
     ranked = f"{order[0]} ({means[order[0]]:.3f})" + "".join(
-        f" {'>' if means[a] > means[b] else '='} {b} ({means[b]:.3f})" for a, b in zip(order, order[1:]))
+        f" {order_sign(models, a, b, metric)} {b} ({means[b]:.3f})" for a, b in zip(order, order[1:]))
     text = f"The paper's order M3 > M4 > M2 > M1 {verdict} here: this run gives {ranked}."
+    intervals = results.get("intervals")
+    if intervals and metric in INTERVAL_METRICS:
+        verdicts = {">": "{a} > {b} as in the paper", "<": "{a} < {b}, against the paper",
+                    "≈": "the intervals cannot order {a} and {b}"}
+        steps = []
+        for (a, b), sign in zip(pairs, signs):
+            interval = _interval_text(models[a]["difference_interval"][b][metric], "{:+.3f}")
+            steps.append(f"{a} - {b} {means[a] - means[b]:+.3f}{interval}, " + verdicts[sign].format(a=a, b=b))
+        text += (f" Pair by pair, the difference with its paired {100 * intervals['level']:g} % bootstrap interval "
+                 f"over the {intervals['frames']} test frames (≈: the interval includes 0): {'; '.join(steps)}.")
     if seeds > 1:
         close = [f"{a} - {b}" for a, b in zip(order, order[1:])
                  if means[a] - means[b] <= max(models[a]["std"][metric], models[b]["std"][metric])]
         text += (f" Gaps within one standard deviation of the {seeds} seeds: {', '.join(close)}." if close
                  else f" Every gap is larger than the standard deviation over {seeds} seeds.")
-    oracle = models.get("oracle", {}).get("mean", {}).get(metric)
+    oracle = models.get(ORACLE, {}).get("mean", {}).get(metric)
     if oracle is not None:
         best = order[0]
-        above = all(oracle > value for value in means.values())
-        text += f" The oracle (in-domain training) reaches {oracle:.3f}, {'above' if above else 'not above'} every mix"
+        signs = {name: order_sign(models, ORACLE, name, metric) for name in means}
+        words = {">": "above", "<": "below", "=": "level with", "≈": "not ordered by the intervals against"}
+        where = "above every mix" if all(sign == ">" for sign in signs.values()) else "; ".join(
+            f"{word} {', '.join(name for name in means if signs[name] == sign)}" for sign, word in words.items()
+            if sign in signs.values())
+        text += f" The oracle (in-domain training) reaches {oracle:.3f}, {where}"
         text += f"; the best mix, {best}, reaches {100 * means[best] / oracle:.0f} % of it." if oracle > 0 else "."
     return text
 
@@ -264,22 +364,36 @@ def finetune_statement(results: dict, metric: str = HEADLINE) -> str:
 
 
 def table3(results: dict) -> list[str]:
-    """Markdown lines of Table 3: AP at IoU 0.5 (3D and BEV, R40 and R11), gain over M1, ms/frame, the paper's AP."""
+    """Markdown lines of Table 3: AP at IoU 0.5 (3D and BEV, R40 and R11), gain over M1, the difference to the oracle
+    (where it ran), ms/frame, the paper's AP; with bootstrap intervals where add_intervals filled them."""
     models, seeds = results["models"], len(results["seeds"])
-    gains = gain_over_reference(models)
     paper_gain = {name: 100.0 * (value - PAPER_AP[REFERENCE_MODEL]) for name, value in PAPER_AP.items()}
+    oracle = [ORACLE] if ORACLE in models else []
     rows = []
     for name, model in models.items():
-        mean, std = model["mean"], model["std"]
+        mean, std, interval = model["mean"], model["std"], model.get("interval", {})
         ms = mean.get("ms_per_frame")
         rows.append([name if name in PAPER_AP else f"{name} (not in the paper)", "SECOND",
-                     ap_text(mean.get(HEADLINE), std.get(HEADLINE), seeds),
+                     ap_text(mean.get(HEADLINE), std.get(HEADLINE), seeds, interval.get(HEADLINE)),
                      f"{PAPER_AP[name]:.2f}" if name in PAPER_AP else "-",
-                     _pp(gains[name]), _pp(paper_gain.get(name)),
-                     *(ap_text(mean.get(key), std.get(key), seeds) for key in TABLE3_COLUMNS[1:]),
+                     difference_text(models, name, REFERENCE_MODEL), _pp(paper_gain.get(name)),
+                     *(difference_text(models, name, other) for other in oracle),
+                     *(ap_text(mean.get(key), std.get(key), seeds, interval.get(key)) for key in TABLE3_COLUMNS[1:]),
                      "n/a" if ms is None else f"{ms:.1f}"])
     return _table(["Model", "Architecture", "AP 3D R40", "paper AP", "gain over M1 (pp)", "paper gain (pp)",
-                   "AP 3D R11", "AP BEV R40", "AP BEV R11", "ms/frame"], rows)
+                   *(f"vs {other} (pp)" for other in oracle), "AP 3D R11", "AP BEV R40", "AP BEV R11", "ms/frame"],
+                  rows)
+
+
+def interval_note(results: dict) -> str:
+    """What Table 3's brackets mean; '' without bootstrap intervals."""
+    intervals = results.get("intervals")
+    if not intervals:
+        return ""
+    return (f"Brackets: {100 * intervals['level']:g} % bootstrap percentile interval over the {intervals['frames']} "
+            f"test frames ({intervals['resamples']} resamples of the frames with replacement, seed "
+            f"{intervals['seed']}); the differences to M1 and the oracle resample the same frames for both models "
+            "(paired). They cover which test frames were drawn, not the training seed.")
 
 
 def bin_table(results: dict) -> list[str]:
@@ -357,7 +471,7 @@ def render_report(results: dict) -> str:
     seed_note = (f"mean ± standard deviation over {len(seeds)} training seeds {seeds}" if len(seeds) > 1
                  else f"one training seed ({seeds[0]})")
     overrides = f" with overrides `{' '.join(results['overrides'])}`" if results.get("overrides") else ""
-    finetune = finetune_statement(results)
+    finetune, note = finetune_statement(results), interval_note(results)
     lines = [
         "# M1-M4 reproduction report", "",
         f"- profile: **{results['profile']}**{overrides}; {seed_note}",
@@ -379,6 +493,7 @@ def render_report(results: dict) -> str:
            if results.get("jobs", 1) > 1 else "."),
         "",
         *table3(results), "",
+        *([note, ""] if note else []),
         order_statement(results), "",
         *([finetune, ""] if finetune else []),
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",

@@ -12,8 +12,8 @@ The story, one stage per line (each stage's wall time goes into the report):
    runtime.predict over the industrial split, saved as KITTI labels with scores. `jobs` models train at once, each
    in its own process on its share of the cores: on a CPU the sparse convolutions use one thread, so several
    one-thread trainings make better use of the cores than one training on all of them;
-4. AP of the saved prediction labels against the industrial ground truth, figures, results.json and report.md in
-   the output folder (experiments.report).
+4. AP of the saved prediction labels against the industrial ground truth with bootstrap intervals over the test
+   frames, figures, results.json and report.md in the output folder (experiments.report).
 Profiles (cfgs' PROFILES) change sizes, epochs, the grid and how many test frames are simulated
 (DATA_CONFIG.TEST_SOURCE.COUNT); the test split is every frame of the test domain's folder.
 """
@@ -36,6 +36,7 @@ from pcdet_memslidar.datasets.mixing import (
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.experiments.report import (
     add_figures,
+    add_intervals,
     environment,
     model_entry,
     write_report,
@@ -53,13 +54,23 @@ ORACLE = "oracle"  # trained in-domain: the ceiling of what a mix can reach on t
 RUNS = (*MODELS, ORACLE)  # what the reproduction trains unless told otherwise
 FINETUNED = "M5"  # pre-trained on sim, fine-tuned on real at M3's compute (cfgs/m5.yaml): a question of the paper's
 KNOWN_RUNS = (*MODELS, FINETUNED, ORACLE)  # in Table 3's order
+# dense head -> the folder of its experiment configs: SECOND's anchor head (the paper's), CenterPoint's center head
+HEADS = {"anchor": CONFIG_DIR, "center": CONFIG_DIR / "centerpoint"}
 
 
-def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None):
-    """The experiment config cfgs/<model>.yaml with `profile` applied, then DATA_PATH = data_root (if given) and
-    the --set overrides [KEY, VALUE, ...] (checked at load: grid, batch size, epochs, lr)."""
+def run_id(model: str, head: str) -> str:
+    """The name of `model` (of KNOWN_RUNS) trained with `head` (of HEADS) in results and output folders: 'M3' with
+    the paper's anchor head, 'M3-center' with the center head."""
+    return model if head == "anchor" else f"{model}-{head}"
+
+
+def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None,
+                 head: str = "anchor"):
+    """The experiment config cfgs/<model>.yaml (cfgs/centerpoint/<model>.yaml for the center head) with `profile`
+    applied, then DATA_PATH = data_root (if given) and the --set overrides [KEY, VALUE, ...] (checked at load: grid,
+    batch size, epochs, lr)."""
     overrides = (["DATA_CONFIG.DATA_PATH", str(data_root)] if data_root is not None else []) + list(set_cfgs or [])
-    return load_config(CONFIG_DIR / f"{model.lower()}.yaml", overrides, profile=profile)
+    return load_config(HEADS[head] / f"{model.lower()}.yaml", overrides, profile=profile)
 
 
 def frames_needed(cfgs: dict) -> dict[str, Source]:
@@ -127,17 +138,22 @@ def table2_counts(cfg) -> dict[str, dict[str, int]]:
 
 def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None, workers: int = 0,
               command: str = "", set_cfgs: list[str] | None = None, jobs: int | None = None,
-              benchmark_file: Path | None = None, models: tuple[str, ...] = RUNS) -> dict:
-    """Run the whole reproduction (module docstring) of `models` (of KNOWN_RUNS) and return the results dict written
-    to out/results.json. benchmark_file: tools/benchmark_model.py's results, drawn beside this run's models in the
-    AP-vs-time figure when it exists."""
+              benchmark_file: Path | None = None, models: tuple[str, ...] = RUNS,
+              heads: tuple[str, ...] = ("anchor",)) -> dict:
+    """Run the whole reproduction (module docstring) of `models` (of KNOWN_RUNS), each with every head of `heads`
+    (of HEADS; runs named by run_id), and return the results dict written to out/results.json. benchmark_file:
+    tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time figure when it exists."""
     unknown = [model for model in models if model not in KNOWN_RUNS]
     if unknown or not models:
         raise ConfigError(f"--models {' '.join(models)}: choose from {' '.join(KNOWN_RUNS)}")
+    if not heads or any(head not in HEADS for head in heads):
+        raise ConfigError(f"--heads {' '.join(heads)}: choose from {' '.join(HEADS)}")
     models = tuple(model for model in KNOWN_RUNS if model in models)
-    jobs = check_run_options(seeds, jobs, workers, len(models))
+    heads = tuple(head for head in HEADS if head in heads)
+    jobs = check_run_options(seeds, jobs, workers, len(models) * len(heads))
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
-    cfgs = {model: model_config(model, profile, data_root, set_cfgs) for model in models}
+    cfgs = {run_id(model, head): model_config(model, profile, data_root, set_cfgs, head)
+            for head in heads for model in models}
     needed = frames_needed(cfgs)
     refuse_overlap(out, [source.root for source in needed.values()], "--out")
     out.mkdir(parents=True, exist_ok=True)
@@ -149,17 +165,17 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     test = next(iter(cfgs.values())).DATA_CONFIG.TEST_SOURCE.NAME  # 3. train and evaluate M1-M4 and the oracle
     test_layout = KittiLayout(needed[test].root)
     gt_dir, velodyne_dir = test_layout.training / "label_2", test_layout.training / "velodyne"
-    parallel = runs_at_once(seeds * len(models), jobs)
+    parallel = runs_at_once(seeds * len(cfgs), jobs)
     todo = training_jobs(cfgs, seeds, out / "models", gt_dir, out, workers, parallel)
     with clock(f"train and evaluate {len(todo)} models ({parallel} at once)"):
         finished = run_jobs(todo, parallel, logger)
-    runs: dict[str, list[dict]] = {model: [] for model in models}
+    runs: dict[str, list[dict]] = {name: [] for name in cfgs}
     for job, run in zip(todo, finished):
         runs[job["model"]].append(run)
 
     results = {  # 4. report
         "profile": profile, "profile_settings": profile_settings(next(iter(cfgs.values()))),
-        "overrides": list(set_cfgs or []), "seeds": list(range(seeds)), "command": command,
+        "overrides": list(set_cfgs or []), "seeds": list(range(seeds)), "heads": list(heads), "command": command,
         "date": started.isoformat(timespec="seconds"), "jobs": parallel,
         "environment": environment(), "test_domain": test,
         "data": {name: {"path": str(needed[name].root), "frames": len(domain_infos), "domain": needed[name].domain,
@@ -171,6 +187,7 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     with clock("figures"):
         add_figures(results, {model: model_runs[0] for model, model_runs in runs.items()}, gt_dir, velodyne_dir, out,
                     benchmark_file)
+        add_intervals(results, gt_dir, out)
     results["stages"] = clock.seconds
     results["wall_seconds"] = time.perf_counter() - wall_start
     report_path, json_path = write_report(results, out)

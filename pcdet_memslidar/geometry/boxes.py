@@ -43,16 +43,29 @@ def normalize_heading(heading):
     return limit_period(heading, offset=0.5, period=2 * np.pi)
 
 
-def fold_box_headings(boxes) -> np.ndarray:
-    """(M, 7+) LiDAR boxes -> a copy, each the same rectangle with its heading folded into [-pi/4, pi/4).
+FOLDS = ("quarter", "half")  # fold_box_headings: headings into [-45, 45) deg, or long side first in [-90, 90) deg
 
-    A box is a rectangle: (dx, dy, heading) and (dy, dx, heading + pi/2) cover the same points. Each odd quarter
-    turn removed swaps dx and dy; extra columns are kept. Computed in float64 (a float32 heading of -pi/4 lands on
-    +pi/4 after rounding: the same box). Used as a training target, the folded box needs one anchor rotation and
-    never a regression through a quarter turn, where the sine loss of the heading has no gradient.
+
+def fold_box_headings(boxes, fold: str = "quarter") -> np.ndarray:
+    """(M, 7+) LiDAR boxes -> a copy, each the same rectangle in a canonical form (extra columns kept).
+
+    A box is a rectangle: (dx, dy, heading) and (dy, dx, heading + pi/2) cover the same points, as do headings a
+    half turn apart. 'quarter': heading folded into [-pi/4, pi/4), dx and dy swapped for each odd quarter turn
+    removed (one anchor rotation covers every box, but the form jumps at +-45 deg: heading by a quarter turn, dx
+    and dy swapped). 'half': the long side first (dx >= dy) and its direction in [-pi/2, pi/2); the only jump is
+    by a half turn at +-90 deg, which the anchor head's sine loss does not see. Computed in float64 (a float32
+    heading of -pi/4 lands on +pi/4 after rounding: the same box).
     """
+    if fold not in FOLDS:
+        raise ValueError(f"fold {fold!r}: use one of {', '.join(FOLDS)}")
     boxes = np.array(boxes, copy=True)
     heading = boxes[:, 6].astype(np.float64)
+    if fold == "half":
+        swap = boxes[:, 3] < boxes[:, 4]
+        heading = heading + np.where(swap, np.pi / 2, 0.0)
+        boxes[swap, 3:5] = boxes[swap][:, [4, 3]]
+        boxes[:, 6] = np.mod(heading + np.pi / 2, np.pi) - np.pi / 2
+        return boxes
     turns = np.floor((heading + np.pi / 4) / (np.pi / 2))
     boxes[:, 6] = heading - turns * (np.pi / 2)
     odd = np.mod(turns, 2) == 1

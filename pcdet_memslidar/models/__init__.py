@@ -1,4 +1,4 @@
-"""SECOND modules under their OpenPCDet names and state-dict layout; runs on CPU and GPU.
+"""SECOND and CenterPoint under their OpenPCDet names and state-dict layout; runs on CPU and GPU.
 
 Public API:
     build_network(model_cfg, num_class, dataset) -> nn.Module    (model chosen by model_cfg.NAME)
@@ -11,9 +11,9 @@ import numpy as np
 import torch
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.models.detector import SECONDNet
+from pcdet_memslidar.models.detector import CenterPoint, SECONDNet
 
-DETECTORS = {"SECONDNet": SECONDNet}
+DETECTORS = {"SECONDNet": SECONDNet, "CenterPoint": CenterPoint}
 _HOST_KEYS = {"frame_id", "metadata", "calib", "image_shape", "gt_names", "db_flag"}  # left as they are
 
 

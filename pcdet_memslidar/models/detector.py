@@ -1,16 +1,25 @@
-"""SECONDNet: MeanVFE -> VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> AnchorHeadSingle."""
+"""Detectors as OpenPCDet builds them: a template that builds its modules from the config's sections, and the two
+one-stage detectors on it.
+
+Detector3DTemplate: MeanVFE -> VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> a dense head, each looked
+up by its section's NAME, under OpenPCDet's module names (state dicts match OpenPCDet's key for key); the grid
+check, inference precision and the forward loop are shared. A detector adds its post-processing:
+- SECONDNet: AnchorHeadSingle; scores and boxes per anchor -> size filter, threshold, rotated NMS;
+- CenterPoint: CenterHead; the head decodes and suppresses itself (final_box_dicts), the detector adds the recall.
+"""
 from __future__ import annotations
 
 import torch
 from torch import nn
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.grid import check_second_grid
+from pcdet_memslidar.grid import check_voxel_grid
 from pcdet_memslidar.models.anchor_head import AnchorHeadSingle
 from pcdet_memslidar.models.backbone_2d import BaseBEVBackbone
 from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
+from pcdet_memslidar.models.center_head import CenterHead
 from pcdet_memslidar.models.map_to_bev import HeightCompression
-from pcdet_memslidar.models.post_processing import post_processing, size_limits
+from pcdet_memslidar.models.post_processing import post_processing, recall_record, size_limits
 from pcdet_memslidar.models.vfe import MeanVFE
 
 # inference precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units
@@ -22,7 +31,7 @@ VFES = {"MeanVFE": MeanVFE}
 BACKBONES_3D = {"VoxelBackBone8x": VoxelBackBone8x}
 MAPS_TO_BEV = {"HeightCompression": HeightCompression}
 BACKBONES_2D = {"BaseBEVBackbone": BaseBEVBackbone}
-DENSE_HEADS = {"AnchorHeadSingle": AnchorHeadSingle}
+DENSE_HEADS = {"AnchorHeadSingle": AnchorHeadSingle, "CenterHead": CenterHead}
 
 
 def _lookup(registry: dict, section: str, model_cfg):
@@ -32,13 +41,15 @@ def _lookup(registry: dict, section: str, model_cfg):
     return registry[name]
 
 
-class SECONDNet(nn.Module):
-    """The SECOND detector with OpenPCDet's module names, so state dicts match OpenPCDet's key for key.
+class Detector3DTemplate(nn.Module):
+    """Modules of `module_topology` built from the MODEL sections in order, run in order on one batch_dict.
 
-    forward(batch_dict): in training ({'loss'}, tb_dict, disp_dict); in eval (pred_dicts, recall_dict).
+    forward(batch_dict): in training ({'loss'}, tb_dict, disp_dict); in eval (pred_dicts, recall_dict), each
+    pred_dict {pred_boxes (K, 7), pred_scores (K,), pred_labels (K,) 1-based}.
     """
 
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
+    dense_head_names: tuple[str, ...] = ()  # the heads a detector is made for (empty: any)
     precision = "fp32"  # one of PRECISIONS, for inference (set_precision)
 
     def __init__(self, model_cfg, num_class: int, dataset):
@@ -48,30 +59,50 @@ class SECONDNet(nn.Module):
         self.dataset = dataset
         self.class_names = list(dataset.class_names)
         self.register_buffer("global_step", torch.LongTensor(1).zero_())
-        grid_size = check_second_grid(model_cfg, dataset.point_cloud_range, dataset.voxel_size)
-
-        vfe = _lookup(VFES, "VFE", model_cfg)(
-            model_cfg=model_cfg.VFE, num_point_features=dataset.point_feature_encoder.num_point_features,
-            point_cloud_range=dataset.point_cloud_range, voxel_size=dataset.voxel_size, grid_size=grid_size)
-        backbone_3d = _lookup(BACKBONES_3D, "BACKBONE_3D", model_cfg)(
-            model_cfg=model_cfg.BACKBONE_3D, input_channels=vfe.get_output_feature_dim(), grid_size=grid_size,
-            voxel_size=dataset.voxel_size, point_cloud_range=dataset.point_cloud_range)
-        map_to_bev = _lookup(MAPS_TO_BEV, "MAP_TO_BEV", model_cfg)(model_cfg=model_cfg.MAP_TO_BEV, grid_size=grid_size)
-        backbone_2d = _lookup(BACKBONES_2D, "BACKBONE_2D", model_cfg)(
-            model_cfg=model_cfg.BACKBONE_2D, input_channels=map_to_bev.num_bev_features)
-        head_cfg = model_cfg.DENSE_HEAD
-        dense_head = _lookup(DENSE_HEADS, "DENSE_HEAD", model_cfg)(
-            model_cfg=head_cfg, input_channels=backbone_2d.num_bev_features,
-            num_class=1 if head_cfg.get("CLASS_AGNOSTIC", False) else num_class, class_names=self.class_names,
-            grid_size=grid_size, point_cloud_range=dataset.point_cloud_range, voxel_size=dataset.voxel_size,
-            predict_boxes_when_training=False)
-        ratio_range = model_cfg.POST_PROCESSING.get("SIZE_RATIO_RANGE")
-        self.size_limits = None if ratio_range is None else size_limits(
-            head_cfg.ANCHOR_GENERATOR_CONFIG, self.class_names, ratio_range)
+        head = model_cfg.get("DENSE_HEAD", {}).get("NAME")
+        if self.dense_head_names and head not in self.dense_head_names:
+            raise ConfigError(f"MODEL.NAME {model_cfg.NAME} takes DENSE_HEAD.NAME {' or '.join(self.dense_head_names)}"
+                              f", not {head!r}")
+        info = {"num_point_features": dataset.point_feature_encoder.num_point_features,
+                "grid_size": check_voxel_grid(model_cfg, dataset.point_cloud_range, dataset.voxel_size),
+                "point_cloud_range": dataset.point_cloud_range, "voxel_size": dataset.voxel_size}
         self.module_list = []
-        for name, module in zip(self.module_topology, (vfe, backbone_3d, map_to_bev, backbone_2d, dense_head)):
+        for name in self.module_topology:
+            module = getattr(self, f"build_{name}")(info)
             self.add_module(name, module)
             self.module_list.append(module)
+
+    def build_vfe(self, info: dict) -> nn.Module:
+        vfe = _lookup(VFES, "VFE", self.model_cfg)(
+            model_cfg=self.model_cfg.VFE, num_point_features=info["num_point_features"],
+            point_cloud_range=info["point_cloud_range"], voxel_size=info["voxel_size"], grid_size=info["grid_size"])
+        info["num_point_features"] = vfe.get_output_feature_dim()
+        return vfe
+
+    def build_backbone_3d(self, info: dict) -> nn.Module:
+        return _lookup(BACKBONES_3D, "BACKBONE_3D", self.model_cfg)(
+            model_cfg=self.model_cfg.BACKBONE_3D, input_channels=info["num_point_features"],
+            grid_size=info["grid_size"], voxel_size=info["voxel_size"], point_cloud_range=info["point_cloud_range"])
+
+    def build_map_to_bev_module(self, info: dict) -> nn.Module:
+        module = _lookup(MAPS_TO_BEV, "MAP_TO_BEV", self.model_cfg)(
+            model_cfg=self.model_cfg.MAP_TO_BEV, grid_size=info["grid_size"])
+        info["num_bev_features"] = module.num_bev_features
+        return module
+
+    def build_backbone_2d(self, info: dict) -> nn.Module:
+        module = _lookup(BACKBONES_2D, "BACKBONE_2D", self.model_cfg)(
+            model_cfg=self.model_cfg.BACKBONE_2D, input_channels=info["num_bev_features"])
+        info["num_bev_features"] = module.num_bev_features
+        return module
+
+    def build_dense_head(self, info: dict) -> nn.Module:
+        head_cfg = self.model_cfg.DENSE_HEAD
+        return _lookup(DENSE_HEADS, "DENSE_HEAD", self.model_cfg)(
+            model_cfg=head_cfg, input_channels=info["num_bev_features"],
+            num_class=1 if head_cfg.get("CLASS_AGNOSTIC", False) else self.num_class, class_names=self.class_names,
+            grid_size=info["grid_size"], point_cloud_range=info["point_cloud_range"], voxel_size=info["voxel_size"],
+            predict_boxes_when_training=False)
 
     def update_global_step(self) -> None:
         self.global_step += 1
@@ -94,4 +125,36 @@ class SECONDNet(nn.Module):
         if self.training:
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
+        return self.post_processing(batch_dict)
+
+    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
+        raise NotImplementedError
+
+
+class SECONDNet(Detector3DTemplate):
+    """SECOND (Yan et al. 2018): the anchor head's scores and boxes -> plausible sizes, threshold, rotated NMS."""
+
+    dense_head_names = ("AnchorHeadSingle",)
+
+    def __init__(self, model_cfg, num_class: int, dataset):
+        super().__init__(model_cfg, num_class, dataset)
+        ratio_range = model_cfg.POST_PROCESSING.get("SIZE_RATIO_RANGE")
+        self.size_limits = None if ratio_range is None else size_limits(
+            model_cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG, self.class_names, ratio_range)
+
+    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
         return post_processing(batch_dict, self.model_cfg.POST_PROCESSING, self.size_limits)
+
+
+class CenterPoint(Detector3DTemplate):
+    """CenterPoint (Yin et al. 2021), one stage: the center head's final boxes, with the recall record."""
+
+    dense_head_names = ("CenterHead",)
+
+    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
+        pred_dicts, recall_dict = batch_dict["final_box_dicts"], {}
+        if "gt_boxes" in batch_dict:
+            for index, pred_dict in enumerate(pred_dicts):
+                recall_record(pred_dict["pred_boxes"], batch_dict["gt_boxes"][index],
+                              self.model_cfg.POST_PROCESSING.RECALL_THRESH_LIST, recall_dict)
+        return pred_dicts, recall_dict

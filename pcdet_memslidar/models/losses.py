@@ -1,4 +1,5 @@
-"""Losses of the anchor head (OpenPCDet's loss_utils): sigmoid focal, weighted smooth-L1, weighted cross entropy."""
+"""Losses of the heads (OpenPCDet's loss_utils): for the anchor head sigmoid focal, weighted smooth-L1, weighted
+cross entropy; for the center head the heatmap focal loss and the L1 loss at object centres."""
 from __future__ import annotations
 
 import math
@@ -8,6 +9,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from pcdet_memslidar.geometry.boxes import limit_period
+from pcdet_memslidar.models.centernet import gather_cells
 
 
 class SigmoidFocalClassificationLoss(nn.Module):
@@ -51,6 +53,32 @@ class WeightedCrossEntropyLoss(nn.Module):
 
     def forward(self, logits: torch.Tensor, targets: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
         return F.cross_entropy(logits.permute(0, 2, 1), targets.argmax(dim=-1), reduction="none") * weights
+
+
+class FocalLossCenterNet(nn.Module):
+    """CornerNet's focal loss of a heatmap: -(sum over peak cells of (1 - p)^2 log p + sum over other cells of
+    (1 - target)^4 p^2 log(1 - p)) / number of peaks (not divided where there is none)."""
+
+    def forward(self, probability: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """probability, target (B, C, H, W) in [0, 1] (probability clamped away from 0 and 1) -> scalar."""
+        peak = target.eq(1).float()
+        positive = (torch.log(probability) * (1 - probability) ** 2 * peak).sum()
+        negative = (torch.log(1 - probability) * probability ** 2 * (1 - target) ** 4 * (1 - peak)).sum()
+        peaks = peak.sum()
+        return -negative if peaks == 0 else -(positive + negative) / peaks
+
+
+class RegLossCenterNet(nn.Module):
+    """L1 loss of regressions read at object centre cells, per code entry, summed over objects and frames and
+    divided by the number of objects (at least 1); NaN targets count as exact."""
+
+    def forward(self, output: torch.Tensor, mask: torch.Tensor, inds: torch.Tensor, target: torch.Tensor):
+        """output (B, code, H, W); mask, inds (B, M); target (B, M, code) -> (code,)."""
+        prediction = gather_cells(output, inds)
+        target = torch.where(torch.isnan(target), prediction, target)
+        weight = mask.unsqueeze(-1).float()
+        loss = (prediction * weight - target * weight).abs().sum(dim=(0, 1))
+        return loss / mask.float().sum().clamp_min(1.0)
 
 
 def add_sin_difference(predictions: torch.Tensor, targets: torch.Tensor, dim: int = 6):

@@ -48,20 +48,26 @@ def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: in
 
 
 def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: float, device,
-                   scaler: torch.amp.GradScaler | None = None) -> tuple[float, dict]:
-    """One optimisation step on `batch` (an OpenPCDet batch_dict). Returns (loss, tb_dict)."""
+                   scaler: torch.amp.GradScaler | None = None, phase_done=None) -> tuple[float, dict]:
+    """One optimisation step on `batch` (an OpenPCDet batch_dict). Returns (loss, tb_dict). phase_done(name), if
+    given, is called as each phase ends: 'to device', 'forward', 'backward', 'optimizer' (tools/benchmark_model.py
+    times them)."""
+    phase_done = phase_done or (lambda name: None)
     model.train()
     load_data_to_device(batch, device)
+    phase_done("to device")
     optimizer.zero_grad(set_to_none=True)
     autocast = torch.autocast("cuda", dtype=torch.float16) if scaler is not None else contextlib.nullcontext()
     with autocast:
         ret_dict, tb_dict, _ = model(batch)
         loss = ret_dict["loss"].mean()
+    phase_done("forward")
     if scaler is not None:
         scaler.scale(loss).backward()
         scaler.unscale_(optimizer)
     else:
         loss.backward()
+    phase_done("backward")
     torch.nn.utils.clip_grad_norm_(model.parameters(), grad_norm_clip)
     if scaler is not None:
         scaler.step(optimizer)
@@ -70,7 +76,9 @@ def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: 
         optimizer.step()
     lr_scheduler.step()
     unwrap(model).update_global_step()
-    return loss.item(), tb_dict
+    loss = loss.item()
+    phase_done("optimizer")
+    return loss, tb_dict
 
 
 def _batches(train_loader, train_sampler, epoch: int, state: dict):

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.commands.test import diagnose
-from pcdet_memslidar.evaluation.diagnose import PARTS, extent_agreement, format_diagnosis, part_ablation
+from pcdet_memslidar.evaluation.diagnose import (
+    PARTS,
+    extent_agreement,
+    format_diagnosis,
+    orientation_error_deg,
+    part_ablation,
+)
 
 pytestmark = pytest.mark.filterwarnings("ignore:no ground-truth 'Pedestrian' boxes in the")  # bins left empty here
 
@@ -101,10 +107,38 @@ def test_extent_agreement_of_a_constant_shape_and_of_exact_boxes():
     assert "length m" in format_diagnosis(part_ablation(*_frames(gt_boxes, constant)), result)
 
 
+def _box(dx, dy, heading_deg):
+    return [10.0, 0.0, 0.9, dx, dy, 1.8, np.radians(heading_deg)]
+
+
+@pytest.mark.parametrize("predicted, labelled, error", [
+    (_box(0.8, 0.5, 0.0), _box(0.5, 0.8, 90.0), 0.0),  # the same rectangle, sides named the other way
+    (_box(0.8, 0.5, 0.0), _box(0.8, 0.5, 180.0), 0.0),  # half a turn: the same rectangle
+    (_box(0.8, 0.5, 10.0), _box(0.8, 0.5, 170.0), 20.0),
+    (_box(0.8, 0.5, -89.0), _box(0.8, 0.5, 89.0), 2.0),
+    (_box(0.8, 0.5, 0.0), _box(0.5, 0.8, 0.0), 90.0),  # long sides at right angles: the largest error
+    (_box(0.8, 0.5, 30.0), _box(0.5, 0.8, -45.0), 15.0),  # long sides at 30 and 45 deg
+])
+def test_orientation_error_respects_the_rectangles_symmetry(predicted, labelled, error):
+    assert orientation_error_deg(np.array([predicted]), np.array([labelled]))[0] == pytest.approx(error, abs=1e-9)
+
+
+def test_orientation_in_the_agreement_of_exact_and_of_constant_boxes():
+    gt_boxes = _people(4)
+    gt_boxes[:, 3:5] = [0.8, 0.5]
+    gt_boxes[:, 6] = np.radians([0.0, 10.0, 60.0, 100.0])  # long sides at 0, 10, 60, -80 deg
+    exact = extent_agreement(*_frames(gt_boxes, gt_boxes))["orientation"]
+    assert exact == {"median_abs_error": 0.0, "within_tolerance": 1.0}
+    constant = gt_boxes.copy()
+    constant[:, 6] = 0.0  # errors 0, 10, 60, 80
+    result = extent_agreement(*_frames(gt_boxes, constant))["orientation"]
+    assert result["median_abs_error"] == pytest.approx(35.0, abs=1e-9) and result["within_tolerance"] == 0.5
+
+
 def test_low_scores_and_no_overlap_give_no_pairs():
     gt_boxes = _people(2)
     result = extent_agreement(*_frames(gt_boxes, gt_boxes, scores=[[0.1], [0.2]]))
-    assert result == {"pairs": 0, "length": None, "width": None, "height": None, "heading": None}
+    assert result == {"pairs": 0, "length": None, "width": None, "height": None, "heading": None, "orientation": None}
     assert list(PARTS) == ["centre x, y", "z, height", "length, width", "heading", "all but the centre"]
 
 

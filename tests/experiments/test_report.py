@@ -1,4 +1,5 @@
-"""Report writer on hand-made results (no training): exact numbers, complete tables."""
+"""Report writer on hand-made results (no training): exact numbers, complete tables, bootstrap intervals."""
+import importlib.util
 import json
 from pathlib import Path
 
@@ -7,15 +8,20 @@ import pytest
 
 from pcdet_memslidar.config import load_config, profile_settings
 from pcdet_memslidar.experiments.report import (
+    add_intervals,
     gain_over_reference,
     order_statement,
     render_report,
     summarise_runs,
     table2,
+    table3,
     write_report,
 )
+from pcdet_memslidar.geometry.calibration import Calibration
+from pcdet_memslidar.io.kitti import label_from_boxes, write_label
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "report_intervals.py"
 
 
 def make_results(ap: dict, seeds=(0,), std=0.0):
@@ -89,7 +95,8 @@ def test_order_statement_ties_seeds_and_oracle():
                     "best mix, M3, reaches 80 % of it.")
     tied = order_statement(make_results({"M1": 0.0, "M2": 0.0, "M3": 0.0, "M4": 0.0, "oracle": 0.0}))
     assert tied == ("The paper's order M3 > M4 > M2 > M1 does not hold here: this run gives M3 (0.000) = M4 (0.000) "
-                    "= M2 (0.000) = M1 (0.000). The oracle (in-domain training) reaches 0.000, not above every mix.")
+                    "= M2 (0.000) = M1 (0.000). The oracle (in-domain training) reaches 0.000, level with M3, M4, M2, "
+                    "M1.")
     noisy = order_statement(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.4, "M4": 0.35}, seeds=(0, 1, 2), std=0.06))
     assert noisy.endswith("M3 (0.400) > M4 (0.350) > M2 (0.200) > M1 (0.100). Gaps within one standard deviation of "
                           "the 3 seeds: M3 - M4.")
@@ -110,3 +117,100 @@ def test_report_states_what_its_profile_sets():
     text = render_report(make_results({"M1": 0.1, "M2": 0.2, "M3": 0.3, "M4": 0.4}) | {"profile_settings": settings})
     assert "- what the profile sets (its PROFILES entry; the rest is the config as written): `DATA_CONFIG.MIX.TOTAL " \
            "1200`; `DATA_CONFIG.POINT_CLOUD_RANGE [2.56, -23.2, 0.1, 40.96, 23.2, 2.5]`;" in text
+
+
+# ------------------------------------------------------------------------------------------- bootstrap intervals
+def with_intervals(results: dict, differences: dict, level=0.95) -> dict:
+    """`results` with hand-set paired intervals {(a, b): [low, high]} of AP3D_R40 (b - a: the negated interval)."""
+    for name, model in results["models"].items():
+        model["difference_interval"] = {other: {} for other in results["models"] if other != name}
+    for (a, b), (low, high) in differences.items():
+        results["models"][a]["difference_interval"][b]["AP3D_R40"] = [low, high]
+        results["models"][b]["difference_interval"][a]["AP3D_R40"] = [-high, -low]
+    results["intervals"] = {"level": level, "resamples": 1000, "seed": 0, "frames": 230, "seconds": 1.0}
+    return results
+
+
+def test_order_statement_orders_only_where_the_paired_interval_excludes_zero():
+    ap = {"M1": 0.1, "M2": 0.2, "M3": 0.4, "M4": 0.3, "oracle": 0.5}
+    apart = {("M3", "M4"): [0.05, 0.15], ("M4", "M2"): [0.02, 0.2], ("M2", "M1"): [0.01, 0.2],
+             ("oracle", "M3"): [0.01, 0.2], ("oracle", "M4"): [0.1, 0.3], ("oracle", "M2"): [0.2, 0.4],
+             ("oracle", "M1"): [0.3, 0.5]}
+    held = order_statement(with_intervals(make_results(ap), apart))
+    assert held == ("The paper's order M3 > M4 > M2 > M1 holds here: this run gives M3 (0.400) > M4 (0.300) > M2 "
+                    "(0.200) > M1 (0.100). Pair by pair, the difference with its paired 95 % bootstrap interval over "
+                    "the 230 test frames (≈: the interval includes 0): M3 - M4 +0.100 [+0.050, +0.150], M3 > M4 as "
+                    "in the paper; M4 - M2 +0.100 [+0.020, +0.200], M4 > M2 as in the paper; M2 - M1 +0.100 [+0.010, "
+                    "+0.200], M2 > M1 as in the paper. The oracle (in-domain training) reaches 0.500, above every "
+                    "mix; the best mix, M3, reaches 80 % of it.")
+    close = apart | {("M3", "M4"): [-0.01, 0.2], ("oracle", "M3"): [-0.05, 0.2]}
+    unsure = order_statement(with_intervals(make_results(ap), close))
+    assert unsure.startswith("The paper's order M3 > M4 > M2 > M1 cannot be confirmed here: this run gives M3 (0.400) "
+                             "≈ M4 (0.300) > M2 (0.200) > M1 (0.100).")
+    assert "M3 - M4 +0.100 [-0.010, +0.200], the intervals cannot order M3 and M4;" in unsure
+    assert unsure.endswith("reaches 0.500, above M4, M2, M1; not ordered by the intervals against M3; the best mix, "
+                           "M3, reaches 80 % of it.")
+    reversed_pair = apart | {("M2", "M1"): [-0.2, -0.01]}  # the means say M2 > M1, the paired interval says below
+    against = order_statement(with_intervals(make_results(ap), reversed_pair))
+    assert against.startswith("The paper's order M3 > M4 > M2 > M1 does not hold here: this run gives M3 (0.400) > "
+                              "M4 (0.300) > M2 (0.200) < M1 (0.100).")
+    assert "M2 - M1 +0.100 [-0.200, -0.010], M2 < M1, against the paper." in against
+
+
+def write_labels(folder: Path, frames: list[list], scores: list[list] | None = None):
+    """One KITTI label file per frame of person boxes at (x, y) centres (with scores: predictions)."""
+    for index, centres in enumerate(frames):
+        boxes = np.array([[x, y, 0.9, 0.6, 0.5, 1.8, 0.0] for x, y in centres]).reshape(-1, 7)
+        write_label(folder / f"{index:06d}.txt", label_from_boxes(["Pedestrian"] * len(boxes), boxes,
+                                                                   Calibration.virtual(),
+                                                                   None if scores is None else np.array(scores[index])))
+
+
+def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
+    # two frames of one person each: 'half' finds frame 0 and has a false positive in frame 1 (AP 1, 1/2 or 0 as
+    # frame 0 is drawn twice, once or never), 'mirror' the other way round, 'perfect' finds both
+    gt = [[(5, 0)], [(8, 2)]]
+    half, mirror = ([[(5, 0)], [(15, -5)]], [[0.9], [0.8]]), ([[(15, -5)], [(8, 2)]], [[0.8], [0.9]])
+    perfect = (gt, [[0.9], [0.9]])
+    predictions = {("M1", 0): half, ("M2", 0): mirror, ("M2", 1): half, ("M3", 0): perfect, ("M4", 0): half,
+                   ("oracle", 0): perfect}
+    results = make_results({"M1": 0.5, "M2": 0.5, "M3": 1.0, "M4": 0.5, "oracle": 1.0})
+    results["models"]["M2"]["runs"] = [dict(results["models"]["M2"]["runs"][0], seed=seed,
+                                            predictions=f"models/M2/seed_{seed}/pred") for seed in (0, 1)]
+    write_labels(tmp_path / "gt", gt)
+    for (name, seed), (centres, scores) in predictions.items():
+        write_labels(tmp_path / "models" / name / f"seed_{seed}" / "pred", centres, scores)
+    add_intervals(results, tmp_path / "gt", tmp_path, resamples=200)
+    models = results["models"]
+    assert {key: value for key, value in results["intervals"].items() if key != "seconds"} == {
+        "level": 0.95, "resamples": 200, "seed": 0, "frames": 2}
+    assert set(models["M3"]["interval"]) == {"AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11"}
+    assert models["M3"]["interval"]["AP3D_R40"] == [1.0, 1.0] == models["oracle"]["interval"]["APBEV_R11"]
+    assert models["M1"]["interval"]["AP3D_R40"] == [0.0, 1.0]
+    assert models["M2"]["interval"]["AP3D_R40"] == [0.5, 0.5]  # seed mean of the mirror images: 1/2 on any frames
+    assert models["M4"]["difference_interval"]["M1"]["AP3D_R40"] == [0.0, 0.0]  # the same predictions
+    assert models["M3"]["difference_interval"]["oracle"]["APBEV_R40"] == [0.0, 0.0]
+    assert models["M1"]["difference_interval"]["M3"]["AP3D_R40"] == [-1.0, 0.0]
+    assert set(models["M1"]["difference_interval"]) == {"M2", "M3", "M4", "oracle"}
+    rows = table3(results)
+    assert rows[0].startswith("| Model | Architecture | AP 3D R40 | paper AP | gain over M1 (pp) | paper gain (pp) | "
+                              "vs oracle (pp) | AP 3D R11 |")
+    assert rows[4] == ("| M3 | SECOND | 1.000 [1.000, 1.000] | 0.54 | +50.0 [+0.0, +100.0] | +44.0 | +0.0 [+0.0, +0.0] "
+                       "| 1.010 [1.000, 1.000] | 1.020 [1.000, 1.000] | 1.030 [1.000, 1.000] | 120.0 |")
+    assert rows[2].startswith("| M1 | SECOND | 0.500 [0.000, 1.000] | 0.10 | +0.0 | +0.0 | -50.0 [-100.0, +0.0] |")
+
+    # tools/report_intervals.py does the same for a written report, into another folder
+    write_report(make_results({"M1": 0.5, "M2": 0.5, "M3": 1.0, "M4": 0.5, "oracle": 1.0}) | {
+        "models": {name: {key: value for key, value in model.items() if "interval" not in key}
+                   for name, model in models.items()}}, tmp_path)
+    spec = importlib.util.spec_from_file_location("report_intervals", TOOL)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    out = tmp_path / "again"
+    assert tool.main([str(tmp_path), "--out", str(out), "--gt", str(tmp_path / "gt"), "--resamples", "200"]) == 0
+    again = json.loads((out / "results.json").read_text())
+    assert {name: model["interval"] for name, model in again["models"].items()} == {
+        name: model["interval"] for name, model in models.items()}
+    text = (out / "report.md").read_text()
+    assert "Brackets: 95 % bootstrap percentile interval over the 2 test frames (200 resamples" in text
+    assert rows[4] in text

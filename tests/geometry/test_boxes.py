@@ -98,15 +98,38 @@ def test_fold_box_headings_exact_values_at_the_quarter_turns():
     assert boxes[1, 6] == np.pi / 2  # the input is not changed
 
 
-def test_folded_boxes_are_the_same_rectangles():
+def test_half_fold_puts_the_long_side_first_exact_values():
+    # (dx, dy, heading) -> (folded heading, dx, dy): the long side first, its direction in [-pi/2, pi/2)
+    cases = [
+        (0.75, 0.5, 0.0, 0.0, 0.75, 0.5),
+        (0.75, 0.5, np.pi, 0.0, 0.75, 0.5),
+        (0.75, 0.5, np.pi / 2, -np.pi / 2, 0.75, 0.5),  # +pi/2 goes to -pi/2
+        (0.5, 0.75, 0.0, -np.pi / 2, 0.75, 0.5),  # the long side along y
+        (0.5, 0.75, 0.3, 0.3 - np.pi / 2, 0.75, 0.5),
+        (0.5, 0.75, -0.3, np.pi / 2 - 0.3, 0.75, 0.5),
+        (0.75, 0.5, 1.2, 1.2, 0.75, 0.5),  # no quarter-turn jump at 45 deg
+        (0.75, 0.5, -2.0, np.pi - 2.0, 0.75, 0.5),
+        (0.6, 0.6, 0.25, 0.25, 0.6, 0.6),  # a square keeps its sides
+    ]
+    boxes = np.array([[1.0, 2.0, 0.9, dx, dy, 1.8, heading, 7.0] for dx, dy, heading, *_ in cases])
+    folded = fold_box_headings(boxes, "half")
+    expected = np.array([[heading, dx, dy] for *_, heading, dx, dy in cases])
+    np.testing.assert_allclose(folded[:, [6, 3, 4]], expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(folded[:, [0, 1, 2, 5, 7]], boxes[:, [0, 1, 2, 5, 7]])
+    with pytest.raises(ValueError, match="fold 'third': use one of quarter, half"):
+        fold_box_headings(boxes, "third")
+
+
+@pytest.mark.parametrize("fold, limit", [("quarter", np.pi / 4), ("half", np.pi / 2)])
+def test_folded_boxes_are_the_same_rectangles(fold, limit):
     rng = np.random.default_rng(0)
     boxes = np.column_stack([rng.uniform(-20, 20, (500, 3)), rng.uniform(0.2, 1.0, (500, 3)),
                              rng.uniform(-10, 10, 500)]).astype(np.float32)
-    folded = fold_box_headings(boxes)
+    folded = fold_box_headings(boxes, fold)
     assert folded.dtype == np.float32
-    assert (np.abs(folded[:, 6]) <= np.float32(np.pi / 4)).all()
+    assert (np.abs(folded[:, 6]) <= np.float32(limit)).all()
     # the same 8 corners, in another order: compare each corner with its nearest one of the folded box
     corners, corners_folded = boxes_to_corners_3d(boxes), boxes_to_corners_3d(folded)
     gaps = np.linalg.norm(corners[:, :, None] - corners_folded[:, None], axis=3).min(axis=2)
     assert gaps.max() < 1e-5
-    assert fold_box_headings(np.zeros((0, 8), np.float32)).shape == (0, 8)
+    assert fold_box_headings(np.zeros((0, 8), np.float32), fold).shape == (0, 8)

@@ -9,6 +9,7 @@ from torch.utils.data import DataLoader
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
+from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.runtime.checkpoint import (
     checkpoint_state,
@@ -125,3 +126,27 @@ def test_our_checkpoint_has_openpcdet_structure_and_its_resume_accepts_it(refere
     for group in adam.param_groups:
         for param in group["params"]:
             assert adam.state[param]["exp_avg"].shape == param.shape
+
+
+def test_a_centerpoint_checkpoint_round_trips_and_a_second_one_is_refused_by_it(tmp_path):
+    center_cfg = load_config(REPO / "cfgs" / "centerpoint" / "m3.yaml", ["PROFILE", "smoke"])
+    dataset = _dataset(center_cfg)
+    model = build_network(center_cfg.MODEL, 1, dataset)
+    optimizer = build_optimizer(model, center_cfg.OPTIMIZATION)
+    scheduler = build_scheduler(optimizer, 1, 1, last_epoch=-1, optim_cfg=center_cfg.OPTIMIZATION)
+    train_one_step(model, optimizer, scheduler, next(iter(DataLoader(dataset, batch_size=2,
+                                                                      collate_fn=dataset.collate_batch))), 10.0, "cpu")
+    path = save_checkpoint(checkpoint_state(model, optimizer, epoch=1, it=1), tmp_path / "checkpoint_epoch_1.pth")
+    ours = torch.load(path, map_location="cpu", weights_only=True)
+    assert list(ours)[:5] == OPENPCDET_KEYS
+    fresh = build_network(center_cfg.MODEL, 1, dataset)
+    load_params_from_file(fresh, path, strict=True)
+    assert all(torch.equal(a, b) for a, b in zip(fresh.state_dict().values(), model.state_dict().values()))
+    adam = torch.optim.Adam([{"params": group} for group in _openpcdet_groups(fresh)], lr=0.003, betas=(0.9, 0.99))
+    adam.load_state_dict(ours["optimizer_state"])  # OpenPCDet's resume takes it
+
+    second_cfg = load_config(REPO / "cfgs" / "m3.yaml", ["PROFILE", "smoke"])
+    second = build_network(second_cfg.MODEL, 1, dataset)
+    second_path = save_checkpoint(checkpoint_state(second, None, epoch=1, it=1), tmp_path / "second.pth")
+    with pytest.raises(DataFormatError, match=r"does not fit the model of this config: .*dense_head.*Use the config"):
+        load_params_from_file(fresh, second_path, strict=True)

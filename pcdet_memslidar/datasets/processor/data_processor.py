@@ -1,13 +1,13 @@
 """Data processing after augmentation, each step chosen by NAME from DATA_PROCESSOR (OpenPCDet's names):
 range masking, point shuffling and voxelisation with spconv's PointToVoxel (coords in z, y, x); and ours,
-fold_box_headings (ground-truth boxes as the same rectangles with headings in [-pi/4, pi/4))."""
+fold_box_headings (ground-truth boxes as the same rectangles in a canonical form, FOLD quarter or half)."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from ...errors import ConfigError
-from ...geometry.boxes import boxes_to_corners_3d, fold_box_headings
+from ...geometry.boxes import FOLDS, boxes_to_corners_3d, fold_box_headings
 from ...grid import grid_size
 
 
@@ -79,9 +79,11 @@ class DataProcessor:
         return mask
 
     def _build_fold_box_headings(self, config):
+        form = config.get("FOLD", FOLDS[0])  # checked at load (grid.check_config_grid)
+
         def fold(data_dict, rng):
             if data_dict.get("gt_boxes") is not None:
-                data_dict["gt_boxes"] = fold_box_headings(data_dict["gt_boxes"])
+                data_dict["gt_boxes"] = fold_box_headings(data_dict["gt_boxes"], form)
             return data_dict
         return fold
 
