@@ -109,7 +109,8 @@ def test_seeds_of_the_mix_must_be_non_negative_integers(memslidar_data):
 
 def test_an_unknown_box_fold_fails_naming_the_choices(memslidar_data, tmp_path, capsys):
     steps = ("[{NAME: fold_box_headings, FOLD: third}, {NAME: transform_points_to_voxels, "
-             "VOXEL_SIZE: [0.1, 0.1, 0.06], MAX_POINTS_PER_VOXEL: 5, MAX_NUMBER_OF_VOXELS: {train: 40000, test: 40000}}]")
+             "VOXEL_SIZE: [0.1, 0.1, 0.06], MAX_POINTS_PER_VOXEL: 5, "
+             "MAX_NUMBER_OF_VOXELS: {train: 40000, test: 40000}}]")
     error = _train_error(capsys, tmp_path / "output", "--set", "PROFILE", "smoke", "DATA_CONFIG.DATA_PATH",
                          str(memslidar_data), "DATA_CONFIG.DATA_PROCESSOR", steps)
     assert error.splitlines()[-1].endswith(
