@@ -62,10 +62,10 @@ def unevaluated_classes(folder: Path, annos: dict[str, dict], class_name: str = 
             for name, (objects, files, path) in sorted(ignored.items())]
 
 
-def evaluate_folders(gt_dir: Path, pred_dir: Path) -> tuple[dict, dict[str, int]]:
-    """evaluate() of two label folders -> (result, frame counts {'frames', 'missing_predictions',
-    'predictions_without_gt'}); objects of classes that are not evaluated are reported on stderr
-    (unevaluated_classes)."""
+def aligned_folders(gt_dir: Path, pred_dir: Path) -> tuple[list[dict], list[dict], dict[str, int]]:
+    """The annos of two label folders, frame by frame in the ground truth's sorted order (no detections where a
+    prediction file is missing), and frame counts {'frames', 'missing_predictions', 'predictions_without_gt'};
+    objects of classes that are not evaluated are reported on stderr (unevaluated_classes)."""
     gt, pred = read_label_folder(gt_dir, with_score=False), read_label_folder(pred_dir, with_score=True)
     if not gt:
         raise DataFormatError(gt_dir, "no *.txt ground-truth label files")
@@ -73,8 +73,12 @@ def evaluate_folders(gt_dir: Path, pred_dir: Path) -> tuple[dict, dict[str, int]
         print(f"warning: {warning}", file=sys.stderr)
     no_detections = {"name": np.zeros(0, dtype=str), "boxes_lidar": np.zeros((0, 7)), "score": np.zeros(0)}
     frame_ids = sorted(gt)
-    result = evaluate([gt[i] for i in frame_ids], [pred.get(i, no_detections) for i in frame_ids],
-                      class_name=CLASS_NAME)
     counts = {"frames": len(frame_ids), "missing_predictions": len(set(gt) - set(pred)),
               "predictions_without_gt": len(set(pred) - set(gt))}
-    return result, counts
+    return [gt[i] for i in frame_ids], [pred.get(i, no_detections) for i in frame_ids], counts
+
+
+def evaluate_folders(gt_dir: Path, pred_dir: Path) -> tuple[dict, dict[str, int]]:
+    """evaluate() of two label folders (aligned_folders) -> (result, frame counts)."""
+    gt_annos, dt_annos, counts = aligned_folders(gt_dir, pred_dir)
+    return evaluate(gt_annos, dt_annos, class_name=CLASS_NAME), counts

@@ -46,6 +46,7 @@ from pcdet_memslidar.evaluation.bootstrap import (
     percentile_interval,
     resample_counts,
 )
+from pcdet_memslidar.evaluation.diagnose import extent_agreement
 from pcdet_memslidar.evaluation.figures import (
     SCORE_THRESHOLD,
     choose_example_frames,
@@ -54,8 +55,8 @@ from pcdet_memslidar.evaluation.figures import (
     plot_pr_curves,
     plot_training_curves,
 )
-from pcdet_memslidar.evaluation.folders import CLASS_NAME, evaluate_folders, read_label_folder
-from pcdet_memslidar.evaluation.metrics import ap_summary
+from pcdet_memslidar.evaluation.folders import CLASS_NAME, aligned_folders, read_label_folder
+from pcdet_memslidar.evaluation.metrics import ap_summary, evaluate
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
@@ -70,6 +71,7 @@ TABLE3_COLUMNS = ("AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11")
 INTERVAL_METRICS = TABLE3_COLUMNS  # bootstrap intervals of these (all distances)
 REFERENCE_MODEL = "M1"
 ORACLE = "oracle"  # in-domain training: Table 3 gives every model's difference to it
+DETECTOR_NAMES = {"SECONDNet": "SECOND", "CenterPoint": "CenterPoint"}  # MODEL.NAME -> Table 3's name
 LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
 
 
@@ -103,19 +105,31 @@ def gain_over_reference(models: dict, metric: str = HEADLINE, reference_model: s
 
 
 def score_run(gt_dir: Path, pred_dir: Path) -> dict:
-    """A run's scores as JSON-ready run fields: evaluate_folders of its saved prediction labels against the
-    ground-truth labels -> {metrics (ap_summary), num_gt, num_dt, pr_curves {3D, BEV} (all distances)}."""
-    result, _ = evaluate_folders(gt_dir, pred_dir)
-    return {"metrics": ap_summary(result), "num_gt": result["num_gt"], "num_dt": result["num_dt"],
+    """A run's scores as JSON-ready run fields: the AP of its saved prediction labels against the ground-truth
+    labels and the median orientation error of its matched people -> {metrics (ap_summary and
+    orientation_error_deg, None without a pair), num_gt, num_dt, pr_curves {3D, BEV} (all distances)}."""
+    gt_annos, dt_annos, _ = aligned_folders(gt_dir, pred_dir)
+    result = evaluate(gt_annos, dt_annos, class_name=CLASS_NAME)
+    orientation = extent_agreement(gt_annos, dt_annos)["orientation"]
+    metrics = ap_summary(result) | {"orientation_error_deg": orientation and orientation["median_abs_error"]}
+    return {"metrics": metrics, "num_gt": result["num_gt"], "num_dt": result["num_dt"],
             "pr_curves": {kind: result["pr_curves"][kind]["all"] for kind in ("3D", "BEV")}}
 
 
-def model_entry(cfg_file: str, counts: dict, runs: list[dict]) -> dict:
-    """results['models'][model]: its config, Table 2 counts, mean and std over the seeds' runs, and the runs
-    (without their PR curves, which only the figure draws)."""
+def model_entry(cfg_file: str, counts: dict, runs: list[dict], detector: str = "SECONDNet") -> dict:
+    """results['models'][model]: its config, detector (MODEL.NAME), Table 2 counts, mean and std over the seeds'
+    runs, and the runs (without their PR curves, which only the figure draws)."""
     mean, std = summarise_runs(runs)
-    return {"cfg": cfg_file, "counts": counts, "mean": mean, "std": std,
+    return {"cfg": cfg_file, "detector": detector, "counts": counts, "mean": mean, "std": std,
             "runs": [{key: value for key, value in run.items() if key != "pr_curves"} for run in runs]}
+
+
+def counterpart(models: dict, name: str, base: str) -> str | None:
+    """The id of model `base` (M1, oracle) trained with the same detector as model `name` ('M1-center' for
+    'M3-center'), None where it did not run."""
+    detector = models[name].get("detector", "SECONDNet")
+    return next((other for other in models if other.split("-")[0] == base
+                 and models[other].get("detector", "SECONDNet") == detector), None)
 
 
 def environment() -> dict:
@@ -368,21 +382,24 @@ def table3(results: dict) -> list[str]:
     (where it ran), ms/frame, the paper's AP; with bootstrap intervals where add_intervals filled them."""
     models, seeds = results["models"], len(results["seeds"])
     paper_gain = {name: 100.0 * (value - PAPER_AP[REFERENCE_MODEL]) for name, value in PAPER_AP.items()}
-    oracle = [ORACLE] if ORACLE in models else []
+    with_oracle = any(name.split("-")[0] == ORACLE for name in models)
     rows = []
     for name, model in models.items():
         mean, std, interval = model["mean"], model["std"], model.get("interval", {})
-        ms = mean.get("ms_per_frame")
-        rows.append([name if name in PAPER_AP else f"{name} (not in the paper)", "SECOND",
+        ms, orientation = mean.get("ms_per_frame"), mean.get("orientation_error_deg")
+        references = [counterpart(models, name, base) for base in (REFERENCE_MODEL, *[ORACLE] * with_oracle)]
+        rows.append([name if name in PAPER_AP else f"{name} (not in the paper)",
+                     DETECTOR_NAMES.get(model.get("detector", "SECONDNet"), model.get("detector")),
                      ap_text(mean.get(HEADLINE), std.get(HEADLINE), seeds, interval.get(HEADLINE)),
                      f"{PAPER_AP[name]:.2f}" if name in PAPER_AP else "-",
-                     difference_text(models, name, REFERENCE_MODEL), _pp(paper_gain.get(name)),
-                     *(difference_text(models, name, other) for other in oracle),
+                     *(("-" if other is None else difference_text(models, name, other)) for other in references[:1]),
+                     _pp(paper_gain.get(name)),
+                     *(("-" if other is None else difference_text(models, name, other)) for other in references[1:]),
                      *(ap_text(mean.get(key), std.get(key), seeds, interval.get(key)) for key in TABLE3_COLUMNS[1:]),
-                     "n/a" if ms is None else f"{ms:.1f}"])
+                     "n/a" if orientation is None else f"{orientation:.1f}", "n/a" if ms is None else f"{ms:.1f}"])
     return _table(["Model", "Architecture", "AP 3D R40", "paper AP", "gain over M1 (pp)", "paper gain (pp)",
-                   *(f"vs {other} (pp)" for other in oracle), "AP 3D R11", "AP BEV R40", "AP BEV R11", "ms/frame"],
-                  rows)
+                   *(["vs oracle (pp)"] * with_oracle), "AP 3D R11", "AP BEV R40", "AP BEV R11",
+                   "orientation error (deg)", "ms/frame"], rows)
 
 
 def interval_note(results: dict) -> str:

@@ -182,7 +182,8 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
                         "seed": needed[name].seed, "boxes": sum(len(info["annos"]["name"]) for info in domain_infos)}
                  for name, domain_infos in infos.items()},
         "models": {model: model_entry(str(Path(cfgs[model].CFG_FILE).relative_to(CONFIG_DIR.parent)),
-                                      table2_counts(cfgs[model]), model_runs) for model, model_runs in runs.items()},
+                                      table2_counts(cfgs[model]), model_runs, cfgs[model].MODEL.NAME)
+                   for model, model_runs in runs.items()},
     }
     with clock("figures"):
         add_figures(results, {model: model_runs[0] for model, model_runs in runs.items()}, gt_dir, velodyne_dir, out,

@@ -9,6 +9,7 @@ import pytest
 from pcdet_memslidar.config import load_config, profile_settings
 from pcdet_memslidar.experiments.report import (
     add_intervals,
+    counterpart,
     gain_over_reference,
     order_statement,
     render_report,
@@ -74,7 +75,7 @@ def test_report_tables_complete_and_consistent(tmp_path):
     assert stored["models"]["M3"]["mean"]["AP3D_R40_10-20m"] is None
     model_rows = [line for line in text.splitlines() if line.startswith(("| M1 ", "| M2 ", "| M3 ", "| M4 "))]
     assert len(model_rows) == 4 + 4 + 4  # Table 2, Table 3 and the distance-bin table each have M1-M4
-    assert "| M3 | SECOND | 0.540 | 0.54 | +44.0 | +44.0 | 0.550 | 0.560 | 0.570 | 120.0 |" in text
+    assert "| M3 | SECOND | 0.540 | 0.54 | +44.0 | +44.0 | 0.550 | 0.560 | 0.570 | n/a | 120.0 |" in text
     assert "| M4 | 70 / 30 | 14 / 6 | 10 / 5 | 4 / 1 | 1470 / 630 |" in text
     assert "0-10m (3 gt)" in text and "10-20m (0 gt)" in text and "n/a" in text
     assert "simulated stand-ins" in text and "![example frames](fig3_examples.png)" in text
@@ -196,7 +197,7 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     assert rows[0].startswith("| Model | Architecture | AP 3D R40 | paper AP | gain over M1 (pp) | paper gain (pp) | "
                               "vs oracle (pp) | AP 3D R11 |")
     assert rows[4] == ("| M3 | SECOND | 1.000 [1.000, 1.000] | 0.54 | +50.0 [+0.0, +100.0] | +44.0 | +0.0 [+0.0, +0.0] "
-                       "| 1.010 [1.000, 1.000] | 1.020 [1.000, 1.000] | 1.030 [1.000, 1.000] | 120.0 |")
+                       "| 1.010 [1.000, 1.000] | 1.020 [1.000, 1.000] | 1.030 [1.000, 1.000] | n/a | 120.0 |")
     assert rows[2].startswith("| M1 | SECOND | 0.500 [0.000, 1.000] | 0.10 | +0.0 | +0.0 | -50.0 [-100.0, +0.0] |")
 
     # tools/report_intervals.py does the same for a written report, into another folder
@@ -214,3 +215,16 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     text = (out / "report.md").read_text()
     assert "Brackets: 95 % bootstrap percentile interval over the 2 test frames (200 resamples" in text
     assert rows[4] in text
+
+
+def test_a_second_head_is_compared_with_its_own_m1_and_oracle():
+    models = {name: {"detector": detector, "mean": {"AP3D_R40": ap, "orientation_error_deg": 12.5}, "std": {}}
+              for name, detector, ap in (("M1", "SECONDNet", 0.4), ("oracle", "SECONDNet", 0.6),
+                                         ("M1-center", "CenterPoint", 0.5), ("M3-center", "CenterPoint", 0.55),
+                                         ("oracle-center", "CenterPoint", 0.7))}
+    assert counterpart(models, "M3-center", "M1") == "M1-center"
+    assert counterpart(models, "M3-center", "oracle") == "oracle-center"
+    assert counterpart(models, "oracle", "M1") == "M1"
+    rows = table3({"models": models, "seeds": [0]})
+    assert rows[5].startswith("| M3-center (not in the paper) | CenterPoint | 0.550 | - | +5.0 | n/a | -15.0 | ")
+    assert rows[5].endswith("| 12.5 | n/a |")
