@@ -1,0 +1,31 @@
+"""tools/orientation_from_points.py: the main axis of a person's points against its labelled long side."""
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "orientation_from_points.py"
+
+
+@pytest.fixture(scope="module")
+def tool():
+    spec = importlib.util.spec_from_file_location("orientation_from_points", TOOL)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("degrees", [0.0, 30.0, 90.0, -60.0])
+def test_main_axis_of_points_along_a_line(tool, degrees):
+    along = np.linspace(-1.0, 1.0, 21)[:, None] * [np.cos(np.radians(degrees)), np.sin(np.radians(degrees))]
+    axis = np.degrees(tool.main_axis(along + [5.0, -2.0]))
+    assert (axis - degrees + 90.0) % 180.0 - 90.0 == pytest.approx(0.0, abs=1e-9)  # a line has no direction
+
+
+def test_people_filled_with_points_show_their_long_side(tool, memslidar_data, capsys):
+    errors, counts = tool.orientation_errors(memslidar_data / "industrial", None, 5)
+    assert len(errors) == len(counts) > 0 and (counts >= 5).all()
+    assert np.median(errors) < 20.0  # uniform points in each box: their main axis is the long side (or near)
+    assert tool.main([str(memslidar_data / "industrial"), "--min-points", "5"]) == 0
+    assert "| points per person | people | median error (deg) |" in capsys.readouterr().out

@@ -1,0 +1,75 @@
+"""Is a person's orientation in the points at all? The long side of each labelled box against the main axis of the
+points inside it (principal component analysis in BEV), per number of points.
+
+    python tools/orientation_from_points.py data/memslidar/industrial [--frames 150] [--min-points 5]
+
+A detector can only learn what the points show. If the main axis of a person's own points (the points inside its
+labelled box: the segmentation is given) follows the box's long side, the orientation is observable; the error of
+this estimate bounds what is lost to the sensor, not to the detector. Errors are angles between long sides, in [0, 90]
+deg (evaluation.diagnose.orientation_error_deg); 45 deg is what a guess scores on people facing every way.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.evaluation.diagnose import orientation_error_deg
+from pcdet_memslidar.evaluation.folders import read_label_folder
+from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
+from pcdet_memslidar.io.kitti import CLASS_NAME, read_points
+from pcdet_memslidar.io.layout import KittiLayout
+
+POINT_BINS = ((5, 20), (20, 50), (50, 100), (100, None))  # points per person, lower bound included
+
+
+def main_axis(points_xy: np.ndarray) -> float:
+    """Direction [rad] of the largest principal component of (N, 2) points."""
+    centred = points_xy - points_xy.mean(axis=0)
+    _, vectors = np.linalg.eigh(centred.T @ centred)
+    return float(np.arctan2(vectors[1, -1], vectors[0, -1]))
+
+
+def orientation_errors(root: Path, frames: int | None, min_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """(errors [deg] (P,), points per person (P,)) of every labelled person with at least min_points points in the
+    first `frames` frames of the KITTI folder `root`."""
+    layout = KittiLayout(root)
+    labels = read_label_folder(layout.training / "label_2", with_score=False)
+    errors, counts = [], []
+    for frame_id in sorted(labels)[:frames]:
+        boxes = labels[frame_id]["boxes_lidar"][labels[frame_id]["name"] == CLASS_NAME]
+        if not len(boxes):
+            continue
+        points = read_points(layout.training / "velodyne" / f"{frame_id}.bin")
+        inside = points_in_boxes_mask(points[:, :3], boxes)
+        for index, box in enumerate(boxes):
+            own = points[inside[:, index], :2]
+            if len(own) < min_points:
+                continue
+            estimate = np.array([[*box[:3], 1.0, 0.5, box[5], main_axis(own)]])  # its long side along the axis
+            errors.append(orientation_error_deg(estimate, box[None])[0])
+            counts.append(len(own))
+    return np.asarray(errors), np.asarray(counts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="a KITTI domain folder (training/velodyne, training/label_2)")
+    parser.add_argument("--frames", type=int, default=None, help="the first N frames (default: all)")
+    parser.add_argument("--min-points", type=int, default=5)
+    args = parser.parse_args(argv)
+    errors, counts = orientation_errors(args.root, args.frames, args.min_points)
+    print(f"{args.root}: {len(errors)} people with >= {args.min_points} points\n")
+    print("| points per person | people | median error (deg) | within 15 deg |\n|---|---|---|---|")
+    for low, high in ((args.min_points, None), *POINT_BINS):
+        chosen = (counts >= low) & (counts < (high or np.inf))
+        if chosen.any():
+            label = f"{low}+" if high is None else f"{low}-{high - 1}"
+            print(f"| {label}{' (all)' if low == args.min_points and high is None else ''} | {int(chosen.sum())} | "
+                  f"{np.median(errors[chosen]):.1f} | {np.mean(errors[chosen] <= 15):.0%} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
