@@ -211,3 +211,18 @@ def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cf
     bf16 = eval_one_epoch(cfg, model, one_by_one, epochs, logging.getLogger("test"), "cpu",
                           result_dir=tmp_path / "bf16")
     assert bf16["AP3D_R40"] >= 0.9, bf16
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_training_step_and_inference_on_the_gpu_match_the_cpu(center_model_cfg, small_range, person_voxel):
+    frames = SyntheticPersonDataset(small_range, person_voxel, num_frames=2, seed=5)
+    torch.manual_seed(0)
+    model = build_network(center_model_cfg(), 1, frames)
+    gpu = copy.deepcopy(model).cuda()
+    batch = frames.collate_batch([frames[0], frames[1]])
+    cpu_loss = model.train()(load_data_to_device(copy.deepcopy(batch), "cpu"))[0]["loss"]
+    gpu_loss = gpu.train()(load_data_to_device(copy.deepcopy(batch), "cuda"))[0]["loss"]
+    assert gpu_loss.item() == pytest.approx(cpu_loss.item(), rel=1e-3)
+    with torch.no_grad():
+        preds, _ = gpu.eval()(load_data_to_device(copy.deepcopy(batch), "cuda"))
+    assert preds[0]["pred_boxes"].device.type == "cuda" and preds[0]["pred_boxes"].shape[1] == 7
