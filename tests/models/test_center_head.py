@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 from easydict import EasyDict
-from torch.utils.data import DataLoader
 
 from pcdet_memslidar.config import CONFIG_DIR, cfg_from_yaml_file
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
@@ -23,8 +22,6 @@ from pcdet_memslidar.models.centernet import (
 )
 from pcdet_memslidar.models.losses import FocalLossCenterNet, RegLossCenterNet
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.train_loop import train_model
 
 CENTERPOINT_CFG = CONFIG_DIR / "memslidar_models" / "centerpoint_person.yaml"
 
@@ -184,27 +181,14 @@ def test_every_parameter_gets_a_finite_gradient_with_empty_and_boxless_frames(ce
     assert alone[0]["pred_boxes"].shape[1] == 7 and recall["gt"] == len(frames.frames[2]["gt_boxes"]) > 0
 
 
-def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cfg, small_optim_cfg, small_range,
+def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cfg, overfit, small_range,
                                                       person_voxel):
     dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)
     torch.manual_seed(0)
     model = build_network(center_model_cfg(), 1, dataset)
-    optim_cfg = small_optim_cfg()
-    loader = DataLoader(dataset, batch_size=4, shuffle=False, collate_fn=dataset.collate_batch)
     epochs = 40
-    optimizer = build_optimizer(model, optim_cfg)
-    scheduler = build_scheduler(optimizer, len(loader), epochs, -1, optim_cfg)
-    train_model(model, optimizer, loader, scheduler, optim_cfg, 0, epochs, 0, 0, None, tmp_path, "cpu",
-                ckpt_save_interval=100, use_tqdm_to_record=True)
-    for module in model.modules():  # running statistics of the final weights
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.reset_running_stats()
-            module.momentum = None
-    with torch.no_grad():
-        for batch in loader:
-            model(load_data_to_device(batch, "cpu"))
+    one_by_one = overfit(model, dataset, epochs, tmp_path)
     cfg = EasyDict(MODEL=center_model_cfg())
-    one_by_one = DataLoader(dataset, batch_size=1, shuffle=False, collate_fn=dataset.collate_batch)
     result = eval_one_epoch(cfg, model, one_by_one, epochs, logging.getLogger("test"), "cpu", result_dir=tmp_path)
     assert result["AP3D_R40"] >= 0.9 and np.isclose(result["recall/rcnn_0.5"], 1.0), result
     model.set_precision("bf16")

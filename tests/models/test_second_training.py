@@ -7,14 +7,11 @@ import numpy as np
 import pytest
 import torch
 from easydict import EasyDict
-from torch.utils.data import DataLoader
 
 from pcdet_memslidar.datasets.synthetic import SyntheticPersonDataset
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.runtime.eval_loop import eval_one_epoch
-from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.train_loop import train_model
 
 
 @pytest.fixture(scope="module")
@@ -58,32 +55,13 @@ def test_inference_on_empty_and_boxless_frames(frames, seeded_model):
     assert recall["gt"] == sum(len(frames.frames[i]["gt_boxes"]) for i in range(4))
 
 
-def _recalibrate_batch_norm(model, loader):
-    """Running statistics of the final weights (momentum 0.01 needs thousands of steps to settle)."""
-    for module in model.modules():
-        if isinstance(module, torch.nn.modules.batchnorm._BatchNorm):
-            module.reset_running_stats()
-            module.momentum = None  # cumulative average
-    model.train()
-    with torch.no_grad():
-        for batch in loader:
-            model(load_data_to_device(batch, "cpu"))
-
-
-def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path, seeded_model, small_model_cfg, small_optim_cfg,
-                                                     small_range, person_voxel):
+def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path, seeded_model, small_model_cfg, overfit, small_range,
+                                                     person_voxel):
     dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)
     model = seeded_model(dataset)
-    optim_cfg = small_optim_cfg()
-    loader = DataLoader(dataset, batch_size=4, shuffle=False, collate_fn=dataset.collate_batch)
     epochs = 30
-    optimizer = build_optimizer(model, optim_cfg)
-    scheduler = build_scheduler(optimizer, len(loader), epochs, -1, optim_cfg)
-    train_model(model, optimizer, loader, scheduler, optim_cfg, 0, epochs, 0, 0, None, tmp_path, "cpu",
-                ckpt_save_interval=100, use_tqdm_to_record=True)
-    _recalibrate_batch_norm(model, loader)
+    one_by_one = overfit(model, dataset, epochs, tmp_path)
     cfg = EasyDict(MODEL=small_model_cfg())
-    one_by_one = DataLoader(dataset, batch_size=1, shuffle=False, collate_fn=dataset.collate_batch)
     result = eval_one_epoch(cfg, model, one_by_one, epochs, logging.getLogger("test"), "cpu", result_dir=tmp_path)
     assert result["AP3D_R40"] >= 0.9 and result["APBEV_R40"] >= 0.9, result
     assert result["infer_time_ms"] > 0 and (tmp_path / "result.pkl").is_file()
