@@ -8,6 +8,7 @@ import textwrap
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 import yaml
 
@@ -145,10 +146,11 @@ def _launch(tmp_path, env, script: str, *arguments: str) -> subprocess.Completed
     return subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
 
 
-def test_stock_train_script_runs_on_memslidar_through_the_launcher(tmp_path, memslidar_data):
+@pytest.mark.parametrize("experiment", ["m3.yaml", "centerpoint/m3.yaml"])
+def test_stock_train_script_runs_on_memslidar_through_the_launcher(tmp_path, memslidar_data, experiment):
     env = _fake_openpcdet(tmp_path)
     config = tmp_path / "m3_hook.yaml"  # OpenPCDet's HOOK block, as its TransFusion and DSVT configs write it
-    config.write_text(yaml.safe_dump({"_BASE_CONFIG_": str(CFGS / "m3.yaml"), "HOOK": {"DisableAugmentationHook": {
+    config.write_text(yaml.safe_dump({"_BASE_CONFIG_": str(CFGS / experiment), "HOOK": {"DisableAugmentationHook": {
         "DISABLE_AUG_LIST": ["gt_sampling"], "NUM_LAST_EPOCHS": 1}}}))
     done = _launch(tmp_path, env, "train.py", "--cfg_file", str(config), "--set", "OPTIMIZATION.NUM_EPOCHS", "3",
                    "PROFILE", "smoke", "DATA_CONFIG.DATA_PATH", str(memslidar_data))
