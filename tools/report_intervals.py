@@ -3,8 +3,8 @@ differences between models (experiments.report.add_intervals) and write results.
 
     python tools/report_intervals.py output/reproduce/quick --out /tmp/quick_intervals [--gt DIR] [--resamples N]
 
-The ground truth defaults to the label_2 folder of the results' test domain. The figures stay beside the original
-report (report.md in --out links them by name).
+The ground truth defaults to the label_2 folder of the results' test domain. The intervals figure (ap_intervals.png)
+is drawn into --out; the other figures stay beside the original report (report.md in --out links them by name).
 """
 from __future__ import annotations
 
@@ -29,7 +29,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     results = json.loads((args.report_dir / "results.json").read_text())
     gt_dir = args.gt or KittiLayout(results["data"][results["test_domain"]]["path"]).training / "label_2"
-    add_intervals(results, gt_dir, args.report_dir, args.resamples, args.level, args.seed)
+    args.out.mkdir(parents=True, exist_ok=True)
+    add_intervals(results, gt_dir, args.report_dir, args.resamples, args.level, args.seed, figure_dir=args.out)
     report_path, json_path = write_report(results, args.out)
     print(f"bootstrap: {results['intervals']['seconds']:.1f} s; report: {report_path}; results: {json_path}")
     return 0

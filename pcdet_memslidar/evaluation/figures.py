@@ -289,6 +289,28 @@ def plot_ap_vs_time(path: str | Path, entries: list[dict]) -> Path:
     return save_figure(figure, path)
 
 
+def plot_ap_intervals(path: str | Path, entries: list[dict], reference: float | None = None) -> Path:
+    """Each model's AP with its interval, one row per model (top to bottom in order): entries [{'name', 'ap',
+    'interval' [low, high], 'paper' (AP or None)}]; the paper's AP as a cross, `reference` (the oracle's AP) as a
+    dashed line."""
+    figure = Figure(figsize=(6, 0.45 * len(entries) + 1.4), layout="constrained")
+    ax = figure.add_subplot(1, 1, 1)
+    rows = np.arange(len(entries))[::-1]
+    for row, entry in zip(rows, entries):
+        low, high = entry["interval"]
+        ax.errorbar(entry["ap"], row, xerr=[[entry["ap"] - low], [high - entry["ap"]]], fmt="o", color="C0",
+                    capsize=3, label="this run, 95 % interval" if row == rows[0] else None)
+        if entry.get("paper") is not None:
+            ax.plot(entry["paper"], row, "x", color="C3", label="the paper" if row == rows[0] else None)
+    if reference is not None:
+        ax.axvline(reference, color="gray", linestyle="--", linewidth=1, label="oracle")
+    ax.set_yticks(rows, [entry["name"] for entry in entries])
+    ax.set(xlabel="AP 3D R40 (IoU 0.5), industrial split", xlim=(0, 1), title="AP with bootstrap intervals")
+    ax.grid(alpha=0.3, axis="x")
+    ax.legend(fontsize=8, loc="lower right")
+    return save_figure(figure, path)
+
+
 def plot_training_curves(path: str | Path, curves: dict[str, list[dict]]) -> Path:
     """Training loss per epoch and validation AP against training minutes, one line per model.
 

@@ -50,6 +50,7 @@ from pcdet_memslidar.evaluation.diagnose import extent_agreement
 from pcdet_memslidar.evaluation.figures import (
     SCORE_THRESHOLD,
     choose_example_frames,
+    plot_ap_intervals,
     plot_ap_vs_time,
     plot_example_frames,
     plot_pr_curves,
@@ -179,10 +180,11 @@ def frame_predictions(pred_dir: Path, frame_ids: list[str]) -> list[dict]:
 
 
 def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int = RESAMPLES, level: float = LEVEL,
-                  seed: int = SEED) -> None:
+                  seed: int = SEED, figure_dir: Path | None = None) -> None:
     """Fill results['intervals'] and every model's 'interval' and 'difference_interval' (module docstring): the
     bootstrap over the test frames of gt_dir, from the prediction folders of results' runs (relative to
-    report_dir), the same resampled frames for every model and seed."""
+    report_dir), the same resampled frames for every model and seed; draw ap_intervals.png into figure_dir
+    (default report_dir) and name it in results['figures']."""
     started = time.perf_counter()
     check_level(level)
     gt = read_label_folder(Path(gt_dir), with_score=False)
@@ -204,6 +206,12 @@ def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int 
             for other in results["models"] if other != name}
     results["intervals"] = {"level": level, "resamples": resamples, "seed": seed, "frames": len(frame_ids),
                             "seconds": time.perf_counter() - started}
+    entries = [{"name": name, "ap": model["mean"][HEADLINE], "interval": model["interval"][HEADLINE],
+                "paper": PAPER_AP.get(name) if model.get("detector", "SECONDNet") == "SECONDNet" else None}
+               for name, model in results["models"].items() if model["mean"].get(HEADLINE) is not None]
+    oracle = results["models"].get(ORACLE, {}).get("mean", {}).get(HEADLINE)
+    results.setdefault("figures", {})["ap_intervals"] = plot_ap_intervals(
+        Path(figure_dir or report_dir) / "ap_intervals.png", entries, oracle).name
 
 
 def add_figures(results: dict, runs: dict, gt_dir: Path, velodyne_dir: Path, out: Path,
@@ -464,6 +472,10 @@ def _figure_lines(results: dict) -> list[str]:
         lines += [f"- **{entry['role']}** (frame {entry['frame_id']}): {entry['why']}"
                   for entry in results.get("example_frames", [])]
         lines += ["", f"![example frames]({figures['examples']})", ""]
+    if "ap_intervals" in figures:
+        lines += ["### AP with its interval", "",
+                  "AP 3D R40 of every model with its 95 % bootstrap interval over the test frames, the paper's AP "
+                  "(crosses) and the oracle's (dashed).", "", f"![AP with intervals]({figures['ap_intervals']})", ""]
     if "pr_curves" in figures:
         lines += ["### Precision-recall curves", "", "Industrial split, IoU 0.5, all distances (first seed).", "",
                   f"![precision-recall curves]({figures['pr_curves']})", ""]

@@ -182,6 +182,8 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     for (name, seed), (centres, scores) in predictions.items():
         write_labels(tmp_path / "models" / name / f"seed_{seed}" / "pred", centres, scores)
     add_intervals(results, tmp_path / "gt", tmp_path, resamples=200)
+    assert results["figures"]["ap_intervals"] == "ap_intervals.png"
+    assert (tmp_path / "ap_intervals.png").stat().st_size > 10_000
     models = results["models"]
     assert {key: value for key, value in results["intervals"].items() if key != "seconds"} == {
         "level": 0.95, "resamples": 200, "seed": 0, "frames": 2}
