@@ -117,20 +117,22 @@ def score_run(gt_dir: Path, pred_dir: Path) -> dict:
             "pr_curves": {kind: result["pr_curves"][kind]["all"] for kind in ("3D", "BEV")}}
 
 
-def model_entry(cfg_file: str, counts: dict, runs: list[dict], detector: str = "SECONDNet") -> dict:
-    """results['models'][model]: its config, detector (MODEL.NAME), Table 2 counts, mean and std over the seeds'
-    runs, and the runs (without their PR curves, which only the figure draws)."""
+def model_entry(cfg_file: str, counts: dict, runs: list[dict], detector: str = "SECONDNet",
+                model: str | None = None) -> dict:
+    """results['models'][run id]: its config, detector (MODEL.NAME), model (M1 ... oracle, whatever the head),
+    Table 2 counts, mean and std over the seeds' runs, and the runs (without their PR curves, which only the
+    figure draws)."""
     mean, std = summarise_runs(runs)
-    return {"cfg": cfg_file, "detector": detector, "counts": counts, "mean": mean, "std": std,
+    return {"cfg": cfg_file, "detector": detector, "model": model, "counts": counts, "mean": mean, "std": std,
             "runs": [{key: value for key, value in run.items() if key != "pr_curves"} for run in runs]}
 
 
 def counterpart(models: dict, name: str, base: str) -> str | None:
     """The id of model `base` (M1, oracle) trained with the same detector as model `name` ('M1-center' for
-    'M3-center'), None where it did not run."""
+    'M3-center'), None where it did not run. An entry without 'model' (older results) is its own id's model."""
     detector = models[name].get("detector", "SECONDNet")
-    return next((other for other in models if other.split("-")[0] == base
-                 and models[other].get("detector", "SECONDNet") == detector), None)
+    return next((other for other, entry in models.items() if (entry.get("model") or other) == base
+                 and entry.get("detector", "SECONDNet") == detector), None)
 
 
 def environment() -> dict:
@@ -390,7 +392,7 @@ def table3(results: dict) -> list[str]:
     (where it ran), ms/frame, the paper's AP; with bootstrap intervals where add_intervals filled them."""
     models, seeds = results["models"], len(results["seeds"])
     paper_gain = {name: 100.0 * (value - PAPER_AP[REFERENCE_MODEL]) for name, value in PAPER_AP.items()}
-    with_oracle = any(name.split("-")[0] == ORACLE for name in models)
+    with_oracle = any((entry.get("model") or name) == ORACLE for name, entry in models.items())
     rows = []
     for name, model in models.items():
         mean, std, interval = model["mean"], model["std"], model.get("interval", {})

@@ -152,8 +152,9 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     heads = tuple(head for head in HEADS if head in heads)
     jobs = check_run_options(seeds, jobs, workers, len(models) * len(heads))
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
-    cfgs = {run_id(model, head): model_config(model, profile, data_root, set_cfgs, head)
-            for head in heads for model in models}
+    planned = [(run_id(model, head), model, head) for head in heads for model in models]
+    bases = {name: model for name, model, _ in planned}  # run id -> M1 ... oracle
+    cfgs = {name: model_config(model, profile, data_root, set_cfgs, head) for name, model, head in planned}
     needed = frames_needed(cfgs)
     refuse_overlap(out, [source.root for source in needed.values()], "--out")
     out.mkdir(parents=True, exist_ok=True)
@@ -182,7 +183,8 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
                         "seed": needed[name].seed, "boxes": sum(len(info["annos"]["name"]) for info in domain_infos)}
                  for name, domain_infos in infos.items()},
         "models": {model: model_entry(str(Path(cfgs[model].CFG_FILE).relative_to(CONFIG_DIR.parent)),
-                                      table2_counts(cfgs[model]), model_runs, cfgs[model].MODEL.NAME)
+                                      table2_counts(cfgs[model]), model_runs, cfgs[model].MODEL.NAME,
+                                      bases[model])
                    for model, model_runs in runs.items()},
     }
     with clock("figures"):

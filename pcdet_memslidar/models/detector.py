@@ -9,6 +9,8 @@ check, inference precision and the forward loop are shared. A detector adds its 
 """
 from __future__ import annotations
 
+import abc
+
 import torch
 from torch import nn
 
@@ -41,7 +43,7 @@ def _lookup(registry: dict, section: str, model_cfg):
     return registry[name]
 
 
-class Detector3DTemplate(nn.Module):
+class Detector3DTemplate(nn.Module, abc.ABC):
     """Modules of `module_topology` built from the MODEL sections in order, run in order on one batch_dict.
 
     forward(batch_dict): in training ({'loss'}, tb_dict, disp_dict); in eval (pred_dicts, recall_dict), each
@@ -127,8 +129,9 @@ class Detector3DTemplate(nn.Module):
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
         return self.post_processing(batch_dict)
 
+    @abc.abstractmethod
     def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
-        raise NotImplementedError
+        """The head's outputs in batch_dict -> (pred_dicts, recall_dict); each detector has its own."""
 
 
 class SECONDNet(Detector3DTemplate):

@@ -220,7 +220,8 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
 
 
 def test_a_second_head_is_compared_with_its_own_m1_and_oracle():
-    models = {name: {"detector": detector, "mean": {"AP3D_R40": ap, "orientation_error_deg": 12.5}, "std": {}}
+    models = {name: {"detector": detector, "model": name.split("-")[0],
+                     "mean": {"AP3D_R40": ap, "orientation_error_deg": 12.5}, "std": {}}
               for name, detector, ap in (("M1", "SECONDNet", 0.4), ("oracle", "SECONDNet", 0.6),
                                          ("M1-center", "CenterPoint", 0.5), ("M3-center", "CenterPoint", 0.55),
                                          ("oracle-center", "CenterPoint", 0.7))}
