@@ -13,6 +13,8 @@ OpenPCDet has no plugin hook, so this launcher registers first and then runs the
 - Detector3DTemplate.load_params_from_file / load_params_with_optimizer first read the checkpoint as our loader does
   (runtime.checkpoint.read_checkpoint) and refuse one trained on another grid or profile, before OpenPCDet would
   load the half of it that fits and evaluate anyway;
+- the checkpoints OpenPCDet's training writes (tools/train_utils' checkpoint_state) carry our record of the grid and
+  profile (runtime.checkpoint.trained_on), so that those are refused the same way;
 - torch.load's weights_only mode (the default from torch 2.6) is allowed the numpy scalars that OpenPCDet's one-cycle
   optimizer state holds, so stock OpenPCDet reloads its own checkpoints too.
 Our errors (ConfigError, DataFormatError) come out as one line and exit status 2.
@@ -29,7 +31,7 @@ import torch
 from .config import apply_profile, cfg_from_yaml_file
 from .errors import ConfigError, DataFormatError
 from .grid import check_config_grid
-from .runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint
+from .runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint, trained_on
 
 USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
 
@@ -98,6 +100,29 @@ def _grid_checked(load):
     return checked
 
 
+def record_grid_in_checkpoints(tools_dir: Path) -> None:
+    """Wrap OpenPCDet's tools/train_utils/train_utils.checkpoint_state (if `tools_dir` has it) so that each checkpoint
+    its training saves carries our 'memslidar' record: the grid of the model's dataset and the config's PROFILE."""
+    if not (tools_dir / "train_utils" / "train_utils.py").is_file():
+        return
+    import pcdet.config
+    from train_utils import train_utils
+
+    original = train_utils.checkpoint_state
+    if getattr(original, "memslidar", False):
+        return
+
+    @functools.wraps(original)
+    def checkpoint_state(model=None, *args, **kwargs):
+        state = original(model, *args, **kwargs)
+        if model is not None:
+            state["memslidar"] = {**trained_on(model), "profile": pcdet.config.cfg.get("PROFILE")}
+        return state
+
+    checkpoint_state.memslidar = True
+    train_utils.checkpoint_state = checkpoint_state
+
+
 def main(argv: list[str] | None = None) -> int:
     """Register, then run an OpenPCDet script with the remaining arguments as its command line."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -111,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     register()
     sys.argv = [str(script), *argv[1:]]
     sys.path.insert(0, str(script.parent))  # the script's own folder, as `python script.py` would (train_utils/ ...)
+    record_grid_in_checkpoints(script.parent)
     try:
         runpy.run_path(str(script), run_name="__main__")
     except (ConfigError, DataFormatError) as error:

@@ -98,14 +98,33 @@ FAKE_PCDET = {
         model = Detector3DTemplate(cfg.MODEL, len(cfg.CLASS_NAMES), dataset)
         print(json.dumps({'epoch': model.load_params_from_file(filename=args.ckpt, logger=None, to_cpu=True)}))
     """,
-    # the shape of OpenPCDet's tools/train.py: parse, load cfg, --set, build the loader, load_data_to_gpu, and
-    # train_utils' disable_augmentation_hook before the last epoch
+    # OpenPCDet's tools/train_utils: train_model saves checkpoint_state(...) of every epoch (name looked up at call)
+    "tools/train_utils/__init__.py": "",
+    "tools/train_utils/train_utils.py": """
+        import torch
+
+        def checkpoint_state(model=None, optimizer=None, epoch=None, it=None):
+            return {'epoch': epoch, 'it': it, 'model_state': model.state_dict(), 'optimizer_state': None,
+                    'version': 'pcdet+fake'}
+
+        def save_checkpoint(state, filename='checkpoint'):
+            torch.save(state, f'{filename}.pth')
+
+        def train_model(model, ckpt_save_dir, total_epochs):
+            for epoch in range(1, total_epochs + 1):
+                save_checkpoint(checkpoint_state(model, None, epoch, 7 * epoch),
+                                filename=f'{ckpt_save_dir}/checkpoint_epoch_{epoch}')
+    """,
+    # the shape of OpenPCDet's tools/train.py: parse, load cfg, --set, build the loader, load_data_to_gpu,
+    # train_utils' disable_augmentation_hook before the last epoch, train_model (writes ./checkpoint_epoch_1.pth)
     "tools/train.py": """
         import argparse, json
         import numpy as np
         import torch
         from pcdet.config import cfg, cfg_from_list, cfg_from_yaml_file
         from pcdet.datasets import DatasetTemplate, build_dataloader
+        from pcdet.models.detectors.detector3d_template import Detector3DTemplate
+        from train_utils.train_utils import train_model
 
         parser = argparse.ArgumentParser()
         parser.add_argument('--cfg_file')
@@ -128,6 +147,7 @@ FAKE_PCDET = {
                           'epochs': cfg.OPTIMIZATION.NUM_EPOCHS, 'frames': len(dataset),
                           'gt_boxes': list(batch['gt_boxes'].shape),
                           'augmentations': dataset.data_augmentor.names}))
+        train_model(Detector3DTemplate(cfg.MODEL, len(cfg.CLASS_NAMES), dataset), '.', 1)
     """,
 }
 
@@ -183,6 +203,25 @@ def test_stock_test_script_refuses_a_checkpoint_of_another_grid_and_loads_one_of
     loaded = _launch(tmp_path, env, "test.py", *arguments, "PROFILE", "smoke")
     assert loaded.returncode == 0, loaded.stderr[-3000:]
     assert json.loads(loaded.stdout.strip().splitlines()[-1]) == {"epoch": 2}
+
+
+def test_a_checkpoint_openpcdets_training_writes_is_refused_on_another_grid(tmp_path, memslidar_data):
+    """OpenPCDet's own training (through the launcher) records the grid and profile in its checkpoints, so its
+    test.py refuses them under another profile instead of loading half of the weights."""
+    env = _fake_openpcdet(tmp_path)
+    data = ["DATA_CONFIG.DATA_PATH", str(memslidar_data)]
+    trained = _launch(tmp_path, env, "train.py", "--cfg_file", str(CFGS / "m3.yaml"), "--set", "PROFILE", "smoke",
+                      *data)
+    assert trained.returncode == 0, trained.stderr[-3000:]
+    checkpoint = tmp_path / "checkpoint_epoch_1.pth"
+    record = torch.load(checkpoint, map_location="cpu")["memslidar"]
+    assert record["profile"] == "smoke" and len(record["point_cloud_range"]) == 6 and len(record["voxel_size"]) == 3
+    arguments = ["--cfg_file", str(CFGS / "m3.yaml"), "--ckpt", str(checkpoint), "--set", *data]
+    refused = _launch(tmp_path, env, "test.py", *arguments)
+    assert refused.returncode == 2 and "was trained on profile 'smoke'" in refused.stderr
+    assert refused.stderr.count("\n") == 1 and "(--set PROFILE smoke)" in refused.stderr
+    loaded = _launch(tmp_path, env, "test.py", *arguments, "PROFILE", "smoke")
+    assert loaded.returncode == 0 and json.loads(loaded.stdout.strip().splitlines()[-1]) == {"epoch": 1}
 
 
 def test_launcher_without_script_prints_usage(tmp_path):

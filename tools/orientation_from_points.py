@@ -18,17 +18,11 @@ import numpy as np
 from pcdet_memslidar.evaluation.diagnose import orientation_error_deg
 from pcdet_memslidar.evaluation.folders import read_label_folder
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
+from pcdet_memslidar.geometry.heading import main_axis
 from pcdet_memslidar.io.kitti import CLASS_NAME, read_points
 from pcdet_memslidar.io.layout import KittiLayout
 
 POINT_BINS = ((5, 20), (20, 50), (50, 100), (100, None))  # points per person, lower bound included
-
-
-def main_axis(points_xy: np.ndarray) -> float:
-    """Direction [rad] of the largest principal component of (N, 2) points."""
-    centred = points_xy - points_xy.mean(axis=0)
-    _, vectors = np.linalg.eigh(centred.T @ centred)
-    return float(np.arctan2(vectors[1, -1], vectors[0, -1]))
 
 
 def orientation_errors(root: Path, frames: int | None, min_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -45,9 +39,10 @@ def orientation_errors(root: Path, frames: int | None, min_points: int) -> tuple
         inside = points_in_boxes_mask(points[:, :3], boxes)
         for index, box in enumerate(boxes):
             own = points[inside[:, index], :2]
-            if len(own) < min_points:
+            axis = main_axis(own) if len(own) >= min_points else None
+            if axis is None:
                 continue
-            estimate = np.array([[*box[:3], 1.0, 0.5, box[5], main_axis(own)]])  # its long side along the axis
+            estimate = np.array([[*box[:3], 1.0, 0.5, box[5], axis]])  # its long side along the axis
             errors.append(orientation_error_deg(estimate, box[None])[0])
             counts.append(len(own))
     return np.asarray(errors), np.asarray(counts)

@@ -3,9 +3,10 @@ one-stage detectors on it.
 
 Detector3DTemplate: MeanVFE -> VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> a dense head, each looked
 up by its section's NAME, under OpenPCDet's module names (state dicts match OpenPCDet's key for key); the grid
-check, inference precision and the forward loop are shared. A detector adds its post-processing:
+check, inference precision, the forward loop, the optional heading from points (POST_PROCESSING.HEADING_FROM_POINTS)
+and the recall record are shared. A detector adds its post-processing:
 - SECONDNet: AnchorHeadSingle; scores and boxes per anchor -> size filter, threshold, rotated NMS;
-- CenterPoint: CenterHead; the head decodes and suppresses itself (final_box_dicts), the detector adds the recall.
+- CenterPoint: CenterHead; the head decodes and suppresses itself (final_box_dicts).
 """
 from __future__ import annotations
 
@@ -21,7 +22,13 @@ from pcdet_memslidar.models.backbone_2d import BaseBEVBackbone
 from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
 from pcdet_memslidar.models.center_head import CenterHead
 from pcdet_memslidar.models.map_to_bev import HeightCompression
-from pcdet_memslidar.models.post_processing import post_processing, recall_record, size_limits
+from pcdet_memslidar.models.post_processing import (
+    heading_from_points,
+    orient_by_points,
+    post_processing,
+    recall_record,
+    size_limits,
+)
 from pcdet_memslidar.models.vfe import MeanVFE
 
 # inference precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units
@@ -47,7 +54,8 @@ class Detector3DTemplate(nn.Module, abc.ABC):
     """Modules of `module_topology` built from the MODEL sections in order, run in order on one batch_dict.
 
     forward(batch_dict): in training ({'loss'}, tb_dict, disp_dict); in eval (pred_dicts, recall_dict), each
-    pred_dict {pred_boxes (K, 7), pred_scores (K,), pred_labels (K,) 1-based}.
+    pred_dict {pred_boxes (K, 7), pred_scores (K,), pred_labels (K,) 1-based}: the detector's post_processing, then,
+    with POST_PROCESSING.HEADING_FROM_POINTS, each box's heading from its points (models.post_processing).
     """
 
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
@@ -61,6 +69,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
         self.dataset = dataset
         self.class_names = list(dataset.class_names)
         self.register_buffer("global_step", torch.LongTensor(1).zero_())
+        self.heading_from_points = heading_from_points(model_cfg.POST_PROCESSING)
         head = model_cfg.get("DENSE_HEAD", {}).get("NAME")
         if self.dense_head_names and head not in self.dense_head_names:
             raise ConfigError(f"MODEL.NAME {model_cfg.NAME} takes DENSE_HEAD.NAME {' or '.join(self.dense_head_names)}"
@@ -127,11 +136,18 @@ class Detector3DTemplate(nn.Module, abc.ABC):
         if self.training:
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
-        return self.post_processing(batch_dict)
+        pred_dicts = self.post_processing(batch_dict)
+        if self.heading_from_points is not None:
+            orient_by_points(pred_dicts, batch_dict["points"], *self.heading_from_points)
+        recall_dict = {}
+        for index, pred_dict in enumerate(pred_dicts if "gt_boxes" in batch_dict else []):
+            recall_record(pred_dict["pred_boxes"], batch_dict["gt_boxes"][index],
+                          self.model_cfg.POST_PROCESSING.RECALL_THRESH_LIST, recall_dict)
+        return pred_dicts, recall_dict
 
     @abc.abstractmethod
-    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
-        """The head's outputs in batch_dict -> (pred_dicts, recall_dict); each detector has its own."""
+    def post_processing(self, batch_dict: dict) -> list[dict]:
+        """The head's outputs in batch_dict -> per frame {pred_boxes (K, 7), pred_scores (K,), pred_labels (K,)}."""
 
 
 class SECONDNet(Detector3DTemplate):
@@ -145,19 +161,14 @@ class SECONDNet(Detector3DTemplate):
         self.size_limits = None if ratio_range is None else size_limits(
             model_cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG, self.class_names, ratio_range)
 
-    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
+    def post_processing(self, batch_dict: dict) -> list[dict]:
         return post_processing(batch_dict, self.model_cfg.POST_PROCESSING, self.size_limits)
 
 
 class CenterPoint(Detector3DTemplate):
-    """CenterPoint (Yin et al. 2021), one stage: the center head's final boxes, with the recall record."""
+    """CenterPoint (Yin et al. 2021), one stage: the center head's final boxes (its own NMS)."""
 
     dense_head_names = ("CenterHead",)
 
-    def post_processing(self, batch_dict: dict) -> tuple[list[dict], dict]:
-        pred_dicts, recall_dict = batch_dict["final_box_dicts"], {}
-        if "gt_boxes" in batch_dict:
-            for index, pred_dict in enumerate(pred_dicts):
-                recall_record(pred_dict["pred_boxes"], batch_dict["gt_boxes"][index],
-                              self.model_cfg.POST_PROCESSING.RECALL_THRESH_LIST, recall_dict)
-        return pred_dicts, recall_dict
+    def post_processing(self, batch_dict: dict) -> list[dict]:
+        return batch_dict["final_box_dicts"]

@@ -1,11 +1,12 @@
 """Scores and boxes per anchor -> final detections: implausible sizes dropped, score threshold, top-k,
-class-agnostic rotated NMS."""
+class-agnostic rotated NMS; optionally each box's heading from its points (HEADING_FROM_POINTS, our key)."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.geometry.heading import orient_boxes_by_points
 from pcdet_memslidar.geometry.iou import boxes_iou3d
 from pcdet_memslidar.geometry.nms import nms_rotated
 
@@ -70,13 +71,12 @@ def recall_record(pred_boxes: torch.Tensor, gt_boxes: torch.Tensor, thresh_list,
     return recall_dict
 
 
-def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | None = None) -> tuple[list[dict], dict]:
+def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | None = None) -> list[dict]:
     """batch_cls_preds (B, A, C), batch_box_preds (B, A, 7) -> per frame {pred_boxes (K, 7), pred_scores (K,),
-    pred_labels (K,) 1-based}, and the recall record when gt_boxes are in the batch. With `limits` (C, 2, 3)
-    (size_limits), boxes of implausible size never reach NMS."""
+    pred_labels (K,) 1-based}. With `limits` (C, 2, 3) (size_limits), boxes of implausible size never reach NMS."""
     if post_process_cfg.NMS_CONFIG.get("MULTI_CLASSES_NMS", False):
         raise ConfigError("POST_PROCESSING.NMS_CONFIG.MULTI_CLASSES_NMS is not supported: set it False")
-    pred_dicts, recall_dict = [], {}
+    pred_dicts = []
     for index in range(batch_dict["batch_size"]):
         box_preds = batch_dict["batch_box_preds"][index]
         cls_preds = batch_dict["batch_cls_preds"][index]
@@ -86,10 +86,42 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
         allowed = None if limits is None else plausible(box_preds, labels, limits)
         selected, selected_scores = class_agnostic_nms(scores, box_preds, post_process_cfg.NMS_CONFIG,
                                                        post_process_cfg.get("SCORE_THRESH"), allowed)
-        final_boxes = box_preds[selected]
-        if "gt_boxes" in batch_dict:
-            recall_record(final_boxes, batch_dict["gt_boxes"][index], post_process_cfg.RECALL_THRESH_LIST,
-                          recall_dict)
-        pred_dicts.append({"pred_boxes": final_boxes, "pred_scores": selected_scores,
+        pred_dicts.append({"pred_boxes": box_preds[selected], "pred_scores": selected_scores,
                            "pred_labels": labels[selected] + 1})
-    return pred_dicts, recall_dict
+    return pred_dicts
+
+
+HEADING_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN")  # POST_PROCESSING.HEADING_FROM_POINTS: every key required
+
+
+def heading_from_points(post_process_cfg) -> tuple[int, float] | None:
+    """POST_PROCESSING.HEADING_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m]} -> (min_points, margin), None when
+    absent or not ENABLED; ConfigError for a missing, unknown or out-of-range key."""
+    block = post_process_cfg.get("HEADING_FROM_POINTS")
+    if block is None:
+        return None
+    where = "POST_PROCESSING.HEADING_FROM_POINTS"
+    if not isinstance(block, dict) or set(block) != set(HEADING_KEYS):
+        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1}} (points inside a "
+                          f"box grown by MARGIN m; with fewer than MIN_POINTS the network's heading stays)")
+    enabled, min_points, margin = (block[key] for key in HEADING_KEYS)
+    if not isinstance(enabled, bool):
+        raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
+    if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
+        raise ConfigError(f"{where}.MIN_POINTS is {min_points!r}: use an integer >= 2")
+    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < 10:
+        raise ConfigError(f"{where}.MARGIN is {margin!r}: use metres in [0, 10)")
+    return (min_points, float(margin)) if enabled else None
+
+
+def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float) -> None:
+    """Lay each predicted box's long side along the main axis of its points (geometry.heading), in place.
+    points: (N, 1+3+C) [frame index in the batch, x, y, z, ...] as the batch's."""
+    frame_of = points[:, 0].long()
+    for index, pred_dict in enumerate(pred_dicts):
+        boxes = pred_dict["pred_boxes"]
+        if not len(boxes):
+            continue
+        own = points[frame_of == index, 1:4].detach().cpu().double().numpy()
+        oriented, _ = orient_boxes_by_points(boxes.detach().cpu().double().numpy(), own, min_points, margin)
+        pred_dict["pred_boxes"] = torch.as_tensor(oriented, dtype=boxes.dtype, device=boxes.device)

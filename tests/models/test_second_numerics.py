@@ -96,10 +96,10 @@ def test_post_processing_drops_boxes_no_person_can_have(small_model_cfg):
     boxes[5, 3:6] = torch.stack([anchor[0] * 2.0, anchor[1] * 0.3, anchor[2] * 2.0])
     batch = {"batch_size": 1, "batch_box_preds": boxes[None], "batch_cls_preds": torch.full((1, 6, 1), 5.0),
              "cls_preds_normalized": False}
-    pred_dicts, _ = post_processing(batch, cfg.POST_PROCESSING, limits)
+    pred_dicts = post_processing(batch, cfg.POST_PROCESSING, limits)
     kept = sorted(pred_dicts[0]["pred_boxes"][:, 0].tolist())
     assert kept == [5.0, 30.0]
-    unfiltered, _ = post_processing(batch, cfg.POST_PROCESSING)
+    unfiltered = post_processing(batch, cfg.POST_PROCESSING)
     assert len(unfiltered[0]["pred_boxes"]) >= 3  # without limits the saturated boxes come through
     with pytest.raises(Exception, match="SIZE_RATIO_RANGE"):
         size_limits(cfg.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG, ["Pedestrian"], [1.5, 2.0])

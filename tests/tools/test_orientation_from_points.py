@@ -16,13 +16,6 @@ def tool():
     return module
 
 
-@pytest.mark.parametrize("degrees", [0.0, 30.0, 90.0, -60.0])
-def test_main_axis_of_points_along_a_line(tool, degrees):
-    along = np.linspace(-1.0, 1.0, 21)[:, None] * [np.cos(np.radians(degrees)), np.sin(np.radians(degrees))]
-    axis = np.degrees(tool.main_axis(along + [5.0, -2.0]))
-    assert (axis - degrees + 90.0) % 180.0 - 90.0 == pytest.approx(0.0, abs=1e-9)  # a line has no direction
-
-
 def test_people_filled_with_points_show_their_long_side(tool, memslidar_data, capsys):
     errors, counts = tool.orientation_errors(memslidar_data / "industrial", None, 5)
     assert len(errors) == len(counts) > 0 and (counts >= 5).all()

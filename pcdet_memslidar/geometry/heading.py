@@ -1,0 +1,51 @@
+"""A person's heading from its own points: the main axis of the points in bird's-eye view (principal component
+analysis). A person's footprint is longer across the shoulders than front to back, and the visible returns follow
+it; a box's long side is laid along that axis. Headings are modulo a half turn (a person box is symmetric)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .boxes import check_boxes, points_in_boxes_mask
+
+
+def main_axis(points_xy: np.ndarray) -> float | None:
+    """Direction [rad] of the largest principal component of (N, 2) points [m]; None where the spread has no main
+    axis (one point, or as wide every way: the two variances equal to 1e-9)."""
+    centred = points_xy - points_xy.mean(axis=0)
+    values, vectors = np.linalg.eigh(centred.T @ centred)
+    if values[1] - values[0] <= 1e-9 * values[1]:
+        return None
+    return float(np.arctan2(vectors[1, -1], vectors[0, -1]))
+
+
+def orient_boxes_by_points(boxes, points, min_points: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
+    """(K, 7+) LiDAR boxes, (N, 3+) points [m] -> (a copy of the boxes, (K,) bool: the box was oriented).
+
+    Each box with at least `min_points` points inside it grown by `margin` [m] on every side in x and y (z as it is)
+    and a main axis (main_axis) gets its long side (dx >= dy) along that axis, heading in [-pi/2, pi/2); centre,
+    sizes and extra columns are kept. The others are returned unchanged.
+    """
+    if min_points < 2 or not np.isfinite(margin) or margin < 0:
+        raise ValueError(f"min_points >= 2 and a margin >= 0 m, got {min_points}, {margin}")
+    boxes = np.array(boxes, dtype=np.float64, copy=True)
+    points = np.asarray(points, dtype=np.float64)[:, :3]
+    oriented = np.zeros(len(boxes), dtype=bool)
+    if not len(boxes) or not len(points):
+        return boxes, oriented
+    grown = check_boxes(boxes[:, :7]).copy()
+    grown[:, 3:5] += 2 * margin
+    order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each box reads only its x slab
+    sorted_x = points[order, 0]
+    reach = np.hypot(grown[:, 3], grown[:, 4]) / 2
+    for index, box in enumerate(grown):
+        low = np.searchsorted(sorted_x, box[0] - reach[index], side="left")
+        high = np.searchsorted(sorted_x, box[0] + reach[index], side="right")
+        slab = points[order[low:high]]
+        own = slab[points_in_boxes_mask(slab, box[None])[:, 0], :2]
+        axis = main_axis(own) if len(own) >= min_points else None
+        if axis is None:
+            continue
+        boxes[index, 3:5] = max(boxes[index, 3], boxes[index, 4]), min(boxes[index, 3], boxes[index, 4])
+        boxes[index, 6] = np.mod(axis + np.pi / 2, np.pi) - np.pi / 2
+        oriented[index] = True
+    return boxes, oriented

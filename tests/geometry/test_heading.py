@@ -1,0 +1,66 @@
+"""geometry/heading.py: a box's long side along the main axis of its own points."""
+import numpy as np
+import pytest
+
+from pcdet_memslidar.geometry.heading import main_axis, orient_boxes_by_points
+
+
+def _line(degrees, centre=(5.0, -2.0), count=21, half_length=0.3):
+    direction = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees))])
+    return np.linspace(-half_length, half_length, count)[:, None] * direction + centre
+
+
+@pytest.mark.parametrize("degrees", [0.0, 30.0, 90.0, -60.0])
+def test_main_axis_of_points_along_a_line(degrees):
+    axis = np.degrees(main_axis(_line(degrees)))
+    assert (axis - degrees + 90.0) % 180.0 - 90.0 == pytest.approx(0.0, abs=1e-9)  # a line has no direction
+
+
+@pytest.mark.parametrize("points", [np.zeros((4, 2)), np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])])
+def test_points_as_wide_every_way_have_no_main_axis(points):
+    assert main_axis(points + [3.0, 4.0]) is None  # one spot; a square's corners: equal variances
+
+
+def _with_z(points_xy, z=0.8):
+    return np.column_stack([points_xy, np.full(len(points_xy), z)])
+
+
+def test_a_square_box_gets_its_long_side_along_the_points():
+    box = np.array([[5.0, -2.0, 0.8, 0.55, 0.56, 1.7, 0.3, 7.0]])  # dy > dx, an extra column
+    oriented, done = orient_boxes_by_points(box, _with_z(_line(120.0)), min_points=5, margin=0.0)
+    assert done.tolist() == [True]
+    assert oriented[0, 6] == pytest.approx(np.radians(-60.0), abs=1e-12)  # 120 deg is -60 deg for a rectangle
+    assert oriented[0, [0, 1, 2, 3, 4, 5, 7]].tolist() == [5.0, -2.0, 0.8, 0.56, 0.55, 1.7, 7.0]
+
+
+def test_points_along_x_give_heading_zero_whichever_sign_the_eigenvector_has():
+    box = np.array([[0.0, 0.0, 0.8, 0.6, 0.6, 1.7, 1.0]])
+    oriented, _ = orient_boxes_by_points(box, _with_z(_line(0.0, centre=(0.0, 0.0))), 5, 0.0)
+    assert oriented[0, 6] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_boxes_with_too_few_or_no_main_axis_or_outside_points_stay_as_they_are():
+    boxes = np.array([[0.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4],
+                      [10.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4],
+                      [20.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4]])
+    points = np.vstack([_with_z(_line(45.0, centre=(0.0, 0.0), count=4)),  # 4 < min_points
+                        _with_z(np.zeros((6, 2)) + [10.0, 0.0]),  # one spot
+                        _with_z(_line(45.0, centre=(20.0, 0.0)), z=3.0)])  # above the box
+    oriented, done = orient_boxes_by_points(boxes, points, 5, 0.1)
+    assert done.tolist() == [False, False, False]
+    np.testing.assert_array_equal(oriented, boxes)
+
+
+def test_the_margin_takes_points_just_beside_the_box():
+    box = np.array([[0.0, 0.0, 0.8, 0.4, 0.4, 1.7, 0.0]])
+    beside = _with_z(_line(90.0, centre=(0.25, 0.0), half_length=0.15))  # 0.05 m outside the box in x
+    assert orient_boxes_by_points(box, beside, 5, 0.0)[1].tolist() == [False]
+    oriented, done = orient_boxes_by_points(box, beside, 5, 0.1)
+    assert done.tolist() == [True] and abs(oriented[0, 6]) == pytest.approx(np.pi / 2, abs=1e-12)
+    assert oriented[0, 6] < 0  # headings in [-pi/2, pi/2)
+
+
+@pytest.mark.parametrize("min_points, margin", [(1, 0.1), (5, -0.1), (5, float("nan"))])
+def test_settings_out_of_range_are_refused(min_points, margin):
+    with pytest.raises(ValueError, match="min_points >= 2 and a margin >= 0 m"):
+        orient_boxes_by_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin)

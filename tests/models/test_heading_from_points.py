@@ -1,0 +1,50 @@
+"""POST_PROCESSING.HEADING_FROM_POINTS: the config block and the step after either head's post-processing."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from easydict import EasyDict
+
+from pcdet_memslidar.config import load_config
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.models.post_processing import heading_from_points, orient_by_points
+
+CFGS = Path(__file__).resolve().parents[2] / "cfgs"
+
+
+@pytest.mark.parametrize("cfg_file", ["m3.yaml", "centerpoint/m3.yaml"])
+def test_both_heads_orient_by_points_unless_set_to_none(cfg_file):
+    assert heading_from_points(load_config(CFGS / cfg_file).MODEL.POST_PROCESSING) == (5, 0.1)
+    cfg = load_config(CFGS / cfg_file, ["MODEL.POST_PROCESSING.HEADING_FROM_POINTS.ENABLED", "False"])
+    assert heading_from_points(cfg.MODEL.POST_PROCESSING) is None  # the network's own heading
+
+
+@pytest.mark.parametrize("block, message", [
+    ({"ENABLED": True, "MIN_POINTS": 5}, r"HEADING_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARG"),
+    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN"),
+    ({"ENABLED": "yes", "MIN_POINTS": 5, "MARGIN": 0.1}, r"ENABLED is 'yes': use True or False"),
+    ({"ENABLED": True, "MIN_POINTS": 1, "MARGIN": 0.1}, r"MIN_POINTS is 1: use an integer >= 2"),
+    ({"ENABLED": True, "MIN_POINTS": 5.5, "MARGIN": 0.1}, r"MIN_POINTS is 5.5: use an integer >= 2"),
+    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": -0.1}, r"MARGIN is -0.1: use metres in \[0, 10\)"),
+    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": float("nan")}, r"MARGIN is nan"),
+    ([5, 0.1], "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1}"),
+])
+def test_a_malformed_block_is_refused_naming_the_fix(block, message):
+    with pytest.raises(ConfigError, match=message):
+        heading_from_points(EasyDict({"HEADING_FROM_POINTS": block}))
+
+
+def test_each_frame_of_a_batch_orients_its_boxes_by_its_own_points():
+    line = np.linspace(-0.3, 0.3, 9)
+    frame_1 = np.column_stack([np.ones(9), 4.0 + line, line, np.full(9, 0.8)])  # frame 1: points along x + y
+    pred_dicts = [{"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
+                  {"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
+                  {"pred_boxes": torch.zeros((0, 7))}]
+    orient_by_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0)
+    assert pred_dicts[0]["pred_boxes"].tolist() == [[4.0, 0.0, 0.800000011920929, 0.5, 0.6000000238418579,
+                                                     1.7000000476837158, 1.0]]  # frame 0 has no points: as it was
+    assert pred_dicts[1]["pred_boxes"].dtype == torch.float32
+    assert pred_dicts[1]["pred_boxes"][0, 3:5].tolist() == pytest.approx([0.6, 0.5])  # long side first
+    assert pred_dicts[1]["pred_boxes"][0, 6].item() == pytest.approx(np.pi / 4, abs=1e-6)
+    assert pred_dicts[2]["pred_boxes"].shape == (0, 7)
