@@ -18,15 +18,18 @@ def main_axis(points_xy: np.ndarray) -> float | None:
     return float(np.arctan2(vectors[1, -1], vectors[0, -1]))
 
 
-def orient_boxes_by_points(boxes, points, min_points: int, margin: float) -> tuple[np.ndarray, np.ndarray]:
+def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
+                           min_height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(K, 7+) LiDAR boxes, (N, 3+) points [m] -> (a copy of the boxes, (K,) bool: the box was oriented).
 
-    Each box with at least `min_points` points inside it grown by `margin` [m] on every side in x and y (z as it is)
-    and a main axis (main_axis) gets its long side (dx >= dy) along that axis, heading in [-pi/2, pi/2); centre,
-    sizes and extra columns are kept. The others are returned unchanged.
+    The points of a box: inside it grown by `margin` [m] on every side in x and y, and at least `min_height` [m]
+    above its bottom (legs apart in a stride, and the floor, run along the walking direction, not the shoulders).
+    Each box with at least `min_points` of them and a main axis (main_axis) gets its long side (dx >= dy) along that
+    axis, heading in [-pi/2, pi/2); centre, sizes and extra columns are kept. The others are returned unchanged.
     """
-    if min_points < 2 or not np.isfinite(margin) or margin < 0:
-        raise ValueError(f"min_points >= 2 and a margin >= 0 m, got {min_points}, {margin}")
+    if min_points < 2 or not np.isfinite(margin) or margin < 0 or not np.isfinite(min_height) or min_height < 0:
+        raise ValueError(f"min_points >= 2, a margin >= 0 m and a min_height >= 0 m, got {min_points}, {margin}, "
+                         f"{min_height}")
     boxes = np.array(boxes, dtype=np.float64, copy=True)
     points = np.asarray(points, dtype=np.float64)[:, :3]
     oriented = np.zeros(len(boxes), dtype=bool)
@@ -34,10 +37,14 @@ def orient_boxes_by_points(boxes, points, min_points: int, margin: float) -> tup
         return boxes, oriented
     grown = check_boxes(boxes[:, :7]).copy()
     grown[:, 3:5] += 2 * margin
+    grown[:, 2] += min_height / 2  # the bottom raised by min_height, the top kept
+    grown[:, 5] -= min_height
     order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each box reads only its x slab
     sorted_x = points[order, 0]
     reach = np.hypot(grown[:, 3], grown[:, 4]) / 2
     for index, box in enumerate(grown):
+        if box[5] <= 0:  # a box no taller than min_height keeps its heading
+            continue
         low = np.searchsorted(sorted_x, box[0] - reach[index], side="left")
         high = np.searchsorted(sorted_x, box[0] + reach[index], side="right")
         slab = points[order[low:high]]

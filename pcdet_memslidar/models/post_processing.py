@@ -91,30 +91,34 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
     return pred_dicts
 
 
-HEADING_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN")  # POST_PROCESSING.HEADING_FROM_POINTS: every key required
+HEADING_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN", "MIN_HEIGHT")  # POST_PROCESSING.HEADING_FROM_POINTS, all required
 
 
-def heading_from_points(post_process_cfg) -> tuple[int, float] | None:
-    """POST_PROCESSING.HEADING_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m]} -> (min_points, margin), None when
-    absent or not ENABLED; ConfigError for a missing, unknown or out-of-range key."""
+def heading_from_points(post_process_cfg) -> tuple[int, float, float] | None:
+    """POST_PROCESSING.HEADING_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m], MIN_HEIGHT [m]} -> (min_points, margin,
+    min_height) (geometry.heading.orient_boxes_by_points), None when absent or not ENABLED; ConfigError for a
+    missing, unknown or out-of-range key."""
     block = post_process_cfg.get("HEADING_FROM_POINTS")
     if block is None:
         return None
     where = "POST_PROCESSING.HEADING_FROM_POINTS"
     if not isinstance(block, dict) or set(block) != set(HEADING_KEYS):
-        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1}} (points inside a "
-                          f"box grown by MARGIN m; with fewer than MIN_POINTS the network's heading stays)")
-    enabled, min_points, margin = (block[key] for key in HEADING_KEYS)
+        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.0}} "
+                          f"(points inside a box grown by MARGIN m, MIN_HEIGHT m above its bottom or higher; with "
+                          f"fewer than MIN_POINTS the network's heading stays)")
+    enabled, min_points, margin, min_height = (block[key] for key in HEADING_KEYS)
     if not isinstance(enabled, bool):
         raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
         raise ConfigError(f"{where}.MIN_POINTS is {min_points!r}: use an integer >= 2")
-    if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin < 10:
-        raise ConfigError(f"{where}.MARGIN is {margin!r}: use metres in [0, 10)")
-    return (min_points, float(margin)) if enabled else None
+    for key, value in (("MARGIN", margin), ("MIN_HEIGHT", min_height)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 10:
+            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10)")
+    return (min_points, float(margin), float(min_height)) if enabled else None
 
 
-def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float) -> None:
+def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float,
+                     min_height: float) -> None:
     """Lay each predicted box's long side along the main axis of its points (geometry.heading), in place.
     points: (N, 1+3+C) [frame index in the batch, x, y, z, ...] as the batch's."""
     frame_of = points[:, 0].long()
@@ -123,5 +127,6 @@ def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: i
         if not len(boxes):
             continue
         own = points[frame_of == index, 1:4].detach().cpu().double().numpy()
-        oriented, _ = orient_boxes_by_points(boxes.detach().cpu().double().numpy(), own, min_points, margin)
+        oriented, _ = orient_boxes_by_points(boxes.detach().cpu().double().numpy(), own, min_points, margin,
+                                             min_height)
         pred_dict["pred_boxes"] = torch.as_tensor(oriented, dtype=boxes.dtype, device=boxes.device)

@@ -60,7 +60,20 @@ def test_the_margin_takes_points_just_beside_the_box():
     assert oriented[0, 6] < 0  # headings in [-pi/2, pi/2)
 
 
-@pytest.mark.parametrize("min_points, margin", [(1, 0.1), (5, -0.1), (5, float("nan"))])
-def test_settings_out_of_range_are_refused(min_points, margin):
-    with pytest.raises(ValueError, match="min_points >= 2 and a margin >= 0 m"):
-        orient_boxes_by_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin)
+def test_points_below_min_height_are_left_out():
+    box = np.array([[0.0, 0.0, 0.85, 0.6, 0.6, 1.7, 0.0]])  # bottom at z = 0
+    legs = _with_z(_line(0.0, centre=(0.0, 0.0)), z=0.3)  # a stride along x
+    shoulders = _with_z(_line(90.0, centre=(0.0, 0.0), count=7, half_length=0.2), z=1.4)  # across, along y
+    points = np.vstack([legs, shoulders])
+    assert orient_boxes_by_points(box, points, 5, 0.0)[0][0, 6] == pytest.approx(0.0, abs=1e-12)  # legs dominate
+    oriented, done = orient_boxes_by_points(box, points, 5, 0.0, min_height=0.8)
+    assert done.tolist() == [True] and oriented[0, 6] == pytest.approx(-np.pi / 2, abs=1e-12)
+    assert oriented[0, 2] == 0.85 and oriented[0, 5] == 1.7  # the box itself is not raised
+    assert orient_boxes_by_points(box, points, 5, 0.0, min_height=1.7)[1].tolist() == [False]  # nothing left above
+
+
+@pytest.mark.parametrize("min_points, margin, min_height", [(1, 0.1, 0.0), (5, -0.1, 0.0), (5, float("nan"), 0.0),
+                                                            (5, 0.1, -0.5), (5, 0.1, float("inf"))])
+def test_settings_out_of_range_are_refused(min_points, margin, min_height):
+    with pytest.raises(ValueError, match="min_points >= 2, a margin >= 0 m and a min_height >= 0 m"):
+        orient_boxes_by_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin, min_height)

@@ -15,24 +15,37 @@ CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
 @pytest.mark.parametrize("cfg_file", ["m3.yaml", "centerpoint/m3.yaml"])
 def test_both_heads_orient_by_points_unless_set_to_none(cfg_file):
-    assert heading_from_points(load_config(CFGS / cfg_file).MODEL.POST_PROCESSING) == (5, 0.1)
+    assert heading_from_points(load_config(CFGS / cfg_file).MODEL.POST_PROCESSING)[:2] == (5, 0.1)
     cfg = load_config(CFGS / cfg_file, ["MODEL.POST_PROCESSING.HEADING_FROM_POINTS.ENABLED", "False"])
     assert heading_from_points(cfg.MODEL.POST_PROCESSING) is None  # the network's own heading
 
 
-@pytest.mark.parametrize("block, message", [
-    ({"ENABLED": True, "MIN_POINTS": 5}, r"HEADING_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARG"),
-    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN"),
-    ({"ENABLED": "yes", "MIN_POINTS": 5, "MARGIN": 0.1}, r"ENABLED is 'yes': use True or False"),
-    ({"ENABLED": True, "MIN_POINTS": 1, "MARGIN": 0.1}, r"MIN_POINTS is 1: use an integer >= 2"),
-    ({"ENABLED": True, "MIN_POINTS": 5.5, "MARGIN": 0.1}, r"MIN_POINTS is 5.5: use an integer >= 2"),
-    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": -0.1}, r"MARGIN is -0.1: use metres in \[0, 10\)"),
-    ({"ENABLED": True, "MIN_POINTS": 5, "MARGIN": float("nan")}, r"MARGIN is nan"),
-    ([5, 0.1], "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1}"),
+GOOD = {"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "MIN_HEIGHT": 0.5}
+
+
+def test_a_good_block_gives_its_three_settings():
+    assert heading_from_points(EasyDict({"HEADING_FROM_POINTS": GOOD})) == (5, 0.1, 0.5)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"MIN_HEIGHT": None}, r"HEADING_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEI"),
+    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.0}"),
+    ({"ENABLED": "yes"}, r"ENABLED is 'yes': use True or False"),
+    ({"MIN_POINTS": 1}, r"MIN_POINTS is 1: use an integer >= 2"),
+    ({"MIN_POINTS": 5.5}, r"MIN_POINTS is 5.5: use an integer >= 2"),
+    ({"MARGIN": -0.1}, r"MARGIN is -0.1: use metres in \[0, 10\)"),
+    ({"MARGIN": float("nan")}, r"MARGIN is nan"),
+    ({"MIN_HEIGHT": 12}, r"MIN_HEIGHT is 12: use metres in \[0, 10\)"),
 ])
-def test_a_malformed_block_is_refused_naming_the_fix(block, message):
+def test_a_malformed_block_is_refused_naming_the_fix(change, message):
+    block = {key: value for key, value in {**GOOD, **change}.items() if value is not None}
     with pytest.raises(ConfigError, match=message):
         heading_from_points(EasyDict({"HEADING_FROM_POINTS": block}))
+
+
+def test_a_block_that_is_not_a_mapping_is_refused():
+    with pytest.raises(ConfigError, match="write {ENABLED: True"):
+        heading_from_points(EasyDict({"HEADING_FROM_POINTS": [5, 0.1]}))
 
 
 def test_each_frame_of_a_batch_orients_its_boxes_by_its_own_points():
@@ -41,7 +54,7 @@ def test_each_frame_of_a_batch_orients_its_boxes_by_its_own_points():
     pred_dicts = [{"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.zeros((0, 7))}]
-    orient_by_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0)
+    orient_by_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0, 0.0)
     assert pred_dicts[0]["pred_boxes"].tolist() == [[4.0, 0.0, 0.800000011920929, 0.5, 0.6000000238418579,
                                                      1.7000000476837158, 1.0]]  # frame 0 has no points: as it was
     assert pred_dicts[1]["pred_boxes"].dtype == torch.float32
