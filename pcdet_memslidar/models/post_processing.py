@@ -103,7 +103,7 @@ def heading_from_points(post_process_cfg) -> tuple[int, float, float] | None:
         return None
     where = "POST_PROCESSING.HEADING_FROM_POINTS"
     if not isinstance(block, dict) or set(block) != set(HEADING_KEYS):
-        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.0}} "
+        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4}} "
                           f"(points inside a box grown by MARGIN m, MIN_HEIGHT m above its bottom or higher; with "
                           f"fewer than MIN_POINTS the network's heading stays)")
     enabled, min_points, margin, min_height = (block[key] for key in HEADING_KEYS)

@@ -29,7 +29,7 @@ def test_a_good_block_gives_its_three_settings():
 
 @pytest.mark.parametrize("change, message", [
     ({"MIN_HEIGHT": None}, r"HEADING_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEI"),
-    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.0}"),
+    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4}"),
     ({"ENABLED": "yes"}, r"ENABLED is 'yes': use True or False"),
     ({"MIN_POINTS": 1}, r"MIN_POINTS is 1: use an integer >= 2"),
     ({"MIN_POINTS": 5.5}, r"MIN_POINTS is 5.5: use an integer >= 2"),

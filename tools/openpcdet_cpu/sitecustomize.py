@@ -33,7 +33,7 @@ def _iou3d_nms_on_cpu(module) -> None:
     """iou3d_nms_cuda's four ops as OpenPCDet's iou3d_nms_utils calls them (outputs written into given tensors)."""
     import torch
 
-    from pcdet_memslidar.geometry.iou import bev_intersection_area, near_pairs
+    from pcdet_memslidar.geometry.iou import bev_intersection_area, boxes_iou_bev, near_pairs
     from pcdet_memslidar.geometry.nms import nms_rotated
 
     def greedy(boxes, keep, thresh, axis_aligned):
@@ -54,10 +54,8 @@ def _iou3d_nms_on_cpu(module) -> None:
         return area
 
     def boxes_iou_bev_gpu(boxes_a, boxes_b, ans_iou):
-        inter = overlap(boxes_a, boxes_b)
-        area_a = (boxes_a[:, 3] * boxes_a[:, 4]).double().cpu().view(-1, 1)
-        area_b = (boxes_b[:, 3] * boxes_b[:, 4]).double().cpu().view(1, -1)
-        ans_iou.copy_((inter / torch.clamp(area_a + area_b - inter, min=1e-6)).to(ans_iou.dtype))
+        iou = boxes_iou_bev(*(boxes.detach().cpu()[:, :7].double().numpy() for boxes in (boxes_a, boxes_b)))
+        ans_iou.copy_(torch.from_numpy(iou).to(ans_iou.dtype))
 
     module.nms_gpu = lambda boxes, keep, thresh: greedy(boxes, keep, thresh, axis_aligned=False)
     module.nms_normal_gpu = lambda boxes, keep, thresh: greedy(boxes, keep, thresh, axis_aligned=True)
