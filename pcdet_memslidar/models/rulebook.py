@@ -1,4 +1,4 @@
-"""Sparse 3D convolutions for inference on a CPU, on all threads: spconv's numbers (to float rounding), faster.
+"""Sparse 3D convolutions on a CPU, on all threads, forward and backward: spconv's numbers (to float rounding), faster.
 
 spconv's CPU path runs on one thread (its scatter-add races on more, see spconv_cpu). Here a sparse convolution is
 a rulebook and three dense steps:
@@ -6,10 +6,11 @@ a rulebook and three dense steps:
   row) with input cell = output cell x stride - padding + k (spconv's cross-correlation; a submanifold conv keeps
   the input cells as output cells and centres the kernel);
 - per offset: gather the input rows, multiply by that offset's weight (a torch matrix product), add into the output
-  rows. An output cell takes at most one input per offset, so the adds of one offset
-  never collide: the result does not depend on the thread count, and offsets are summed in one fixed order.
-The eval-mode BatchNorm after each conv is folded into its weight and bias. Only the forward pass is here:
-training keeps spconv (its backward).
+  rows. For one offset the pairs are one-to-one (an output cell takes at most one input, an input reaches at most
+  one output), so the adds of one offset never collide, forward or backward: the result does not depend on the
+  thread count, and offsets are summed in one fixed order.
+Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
+(training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
 """
 from __future__ import annotations
 
@@ -189,25 +190,58 @@ class Rulebook:
         self.pairs = [(k, inputs[k, :n], outputs[k, :n]) for k, n in enumerate(counts.tolist()) if n]
 
 
-def folded(conv: spconv.conv.SparseConvolution, norm: nn.BatchNorm1d | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """Weight (K, C_in, C_out) per kernel offset (spconv's (C_out, kz, ky, kx, C_in) layout), and bias (C_out,),
-    with an eval-mode BatchNorm after the conv folded in."""
-    weight = conv.weight.detach()
-    weight = weight.reshape(weight.shape[0], -1, weight.shape[-1]).permute(1, 2, 0)
-    bias = conv.bias.detach() if conv.bias is not None else weight.new_zeros(weight.shape[-1])
-    if norm is None:
-        return weight.contiguous(), bias
-    scale = norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps)
-    return (weight * scale).contiguous(), (bias - norm.running_mean) * scale + norm.bias.detach()
-
-
 def convolve(features: torch.Tensor, rules: Rulebook, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-    """(V, C_in) features of the input rows -> (M, C_out) of the output rows: sum over offsets in order k = 0..K-1."""
+    """(V, C_in) features of the input rows -> (M, C_out) of the output rows: sum over offsets in order k = 0..K-1
+    (no grad)."""
     out = bias.expand(len(rules.coords), -1).clone()
     for k, inputs, outputs in rules.pairs:
         products = features.index_select(0, inputs) @ weight[k]
         _scatter_add(out.numpy(), outputs.numpy(), products.numpy())
     return out
+
+
+class SparseConvFunction(torch.autograd.Function):
+    """convolve() without bias, with its backward: for each offset k, grad_weight[k] = inputs' features^T @
+    grad_out[outputs] and grad_features[inputs] += grad_out[outputs] @ weight[k]^T (collision-free, see above)."""
+
+    @staticmethod
+    def forward(ctx, features: torch.Tensor, weight: torch.Tensor, rules: Rulebook) -> torch.Tensor:
+        features, weight = features.contiguous(), weight.contiguous()
+        ctx.save_for_backward(features, weight)
+        ctx.rules = rules
+        return convolve(features, rules, weight, weight.new_zeros(weight.shape[-1]))
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        features, weight = ctx.saved_tensors
+        grad_out = grad_out.contiguous()
+        grad_features = torch.zeros_like(features) if ctx.needs_input_grad[0] else None
+        grad_weight = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
+        for k, inputs, outputs in ctx.rules.pairs:
+            grad_rows = grad_out.index_select(0, outputs)
+            if grad_weight is not None:
+                torch.mm(features.index_select(0, inputs).t(), grad_rows, out=grad_weight[k])
+            if grad_features is not None:
+                _scatter_add(grad_features.numpy(), inputs.numpy(), (grad_rows @ weight[k].t()).numpy())
+        return grad_features, grad_weight, None
+
+
+def kernel_weight(conv: spconv.conv.SparseConvolution) -> torch.Tensor:
+    """The conv's weight as (K, C_in, C_out) per kernel offset, a differentiable view of spconv's (C_out, kz, ky,
+    kx, C_in) parameter."""
+    weight = conv.weight
+    return weight.reshape(weight.shape[0], -1, weight.shape[-1]).permute(1, 2, 0)
+
+
+def folded(conv: spconv.conv.SparseConvolution, norm: nn.BatchNorm1d | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weight (K, C_in, C_out) and bias (C_out,) of the conv, detached, with an eval-mode BatchNorm after the conv
+    folded in."""
+    weight = kernel_weight(conv).detach()
+    bias = conv.bias.detach() if conv.bias is not None else weight.new_zeros(weight.shape[-1])
+    if norm is None:
+        return weight.contiguous(), bias
+    scale = norm.weight.detach() / torch.sqrt(norm.running_var + norm.eps)
+    return (weight * scale).contiguous(), (bias - norm.running_mean) * scale + norm.bias.detach()
 
 
 def _layers(module: nn.Module) -> list[nn.Module]:
@@ -218,12 +252,14 @@ def _layers(module: nn.Module) -> list[nn.Module]:
 
 
 def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spconv.SparseConvTensor:
-    """Forward of a SparseSequential of sparse convs, eval-mode BatchNorm1d and ReLU on the CPU (the tensor's cells
-    distinct, as spconv requires; no grad), with rulebooks
-    shared through `cache` by indice_key as spconv shares its indices. numba runs on as many threads as torch."""
+    """Forward of a SparseSequential of sparse convs, BatchNorm1d and ReLU on the CPU (the tensor's cells distinct,
+    as spconv requires), with rulebooks shared through `cache` by indice_key as spconv shares its indices. Without
+    grad an eval-mode BatchNorm is folded into the conv before it; with grad the convs are differentiable
+    (SparseConvFunction). numba runs on as many threads as torch."""
     threads = torch.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # starts numba's OpenMP pool at the first
     torch.set_num_threads(threads)  # call, which sets OpenMP's thread count: torch's too (libgomp is shared)
+    grad = torch.is_grad_enabled()
     features, coords, shape = tensor.features, tensor.indices.numpy().astype(np.int64), tensor.spatial_shape
     layers = _layers(module)
     for position, layer in enumerate(layers):
@@ -233,14 +269,21 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spco
             rules = cache.get(key)
             if rules is None or rules.coords is not coords and not np.array_equal(rules.coords, coords):
                 rules = cache[key] = Rulebook(coords, shape, layer)
-            following = layers[position + 1] if position + 1 < len(layers) else None
-            norm = following if isinstance(following, nn.BatchNorm1d) else None
-            features = convolve(features, rules, *folded(layer, norm))
+            if grad:
+                features = SparseConvFunction.apply(features, kernel_weight(layer), rules)
+                features = features if layer.bias is None else features + layer.bias
+            else:
+                following = layers[position + 1] if position + 1 < len(layers) else None
+                norm = following if isinstance(following, nn.BatchNorm1d) and not following.training else None
+                features = convolve(features, rules, *folded(layer, norm))
             coords, shape = rules.coords, rules.shape.tolist()
-        elif isinstance(layer, nn.BatchNorm1d) and isinstance(previous, spconv.conv.SparseConvolution):
+        elif isinstance(layer, nn.BatchNorm1d) and not (grad or layer.training) and isinstance(
+                previous, spconv.conv.SparseConvolution):
             continue  # folded into the conv before it
+        elif isinstance(layer, nn.BatchNorm1d):
+            features = layer(features)
         elif isinstance(layer, nn.ReLU):
-            features = features.clamp_min_(0)
+            features = torch.relu(features) if grad else features.clamp_min_(0)
         else:
             raise ValueError(f"{type(layer).__name__} in a sparse block: the CPU rulebook takes sparse "
                                       f"convs, each optionally followed by BatchNorm1d, and ReLU")

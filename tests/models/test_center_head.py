@@ -186,7 +186,7 @@ def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cf
     dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)
     torch.manual_seed(0)
     model = build_network(center_model_cfg(), 1, dataset)
-    epochs = 40
+    epochs = 80  # 40 reached AP 1.0 for 2 of 4 seeds (one person of 6 missed otherwise), 80 for 6 of 6
     one_by_one = overfit(model, dataset, epochs, tmp_path)
     cfg = EasyDict(MODEL=center_model_cfg())
     result = eval_one_epoch(cfg, model, one_by_one, epochs, logging.getLogger("test"), "cpu", result_dir=tmp_path)

@@ -1,6 +1,6 @@
 """models.rulebook on hand-made cells with exact expected values: a submanifold conv at a corner of the grid and
-across frames, a stride-2 conv reaching 8 output cells, conv_out's (3, 1, 1) kernel, BatchNorm folding, and the
-layers it refuses."""
+across frames, its gradients, a stride-2 conv reaching 8 output cells, conv_out's (3, 1, 1) kernel, BatchNorm
+folding, and the layers it refuses; the backward against finite differences in float64."""
 import pytest
 import spconv.pytorch as spconv
 import torch
@@ -32,6 +32,40 @@ def test_submanifold_conv_at_a_corner_keeps_frames_apart():
     conv = _conv(spconv.SubMConv3d(1, 1, 3, bias=False, indice_key="subm"))
     out = _run(conv, [[0, 0, 0, 0], [0, 0, 0, 1], [1, 0, 0, 1]], [1.0, 10.0, 100.0], [2, 2, 2], batch_size=2)
     assert out == {(0, 0, 0, 0): 14 * 1 + 15 * 10, (0, 0, 0, 1): 14 * 10 + 13 * 1, (1, 0, 0, 1): 14 * 100}
+
+
+def test_gradients_of_the_submanifold_conv_at_a_corner():
+    """The cells of the test above, loss = sum of the outputs. Cell (0, 0, 0) of frame 0 reaches its own output by
+    the centre (14) and output (0, 0, 1) by dx = -1 (13): gradient 27; cell (0, 0, 1) reaches its own by the centre
+    and (0, 0, 0) by dx = +1 (15): 29; frame 1's cell only its own: 14. The weight of offset k gets the sum of the
+    inputs it carried: centre 1 + 10 + 100, dx = -1 1, dx = +1 10, every other offset 0."""
+    conv = _conv(spconv.SubMConv3d(1, 1, 3, bias=False, indice_key="subm")).train()
+    features = torch.tensor([[1.0], [10.0], [100.0]], requires_grad=True)
+    tensor = spconv.SparseConvTensor(features, torch.tensor([[0, 0, 0, 0], [0, 0, 0, 1], [1, 0, 0, 1]],
+                                                            dtype=torch.int32), [2, 2, 2], 2)
+    rulebook.run(conv, tensor, {}).features.sum().backward()
+    assert features.grad[:, 0].tolist() == [27.0, 29.0, 14.0]
+    expected = torch.zeros(27)
+    expected[13], expected[12], expected[14] = 111.0, 1.0, 10.0
+    assert torch.equal(conv.weight.grad.flatten(), expected)
+
+
+@pytest.mark.parametrize("conv", [spconv.SubMConv3d(3, 4, 3, bias=False, indice_key="subm"),
+                                  spconv.SparseConv3d(3, 4, 3, stride=2, padding=1, bias=False),
+                                  spconv.SparseConv3d(3, 4, (3, 1, 1), stride=(2, 1, 1), bias=False)],
+                         ids=["subm", "stride 2", "conv_out"])
+def test_backward_equals_finite_differences_in_float64(conv):
+    generator = torch.Generator().manual_seed(0)
+    shape = [7, 9, 8]
+    cells = torch.unique(torch.stack([torch.randint(0, s, (80,), generator=generator) for s in shape], 1), dim=0)
+    coords = torch.cat([torch.randint(0, 2, (len(cells), 1), generator=generator), cells], 1)
+    coords = torch.unique(coords, dim=0).numpy()
+    rules = rulebook.Rulebook(coords, shape, conv)
+    features = torch.randn(len(coords), 3, dtype=torch.float64, generator=generator, requires_grad=True)
+    weight = torch.randn(rulebook.kernel_weight(conv).shape, dtype=torch.float64, generator=generator,
+                         requires_grad=True)
+    assert len(rules.pairs) > 1
+    assert torch.autograd.gradcheck(lambda f, w: rulebook.SparseConvFunction.apply(f, w, rules), (features, weight))
 
 
 def test_stride_2_conv_reaches_eight_output_cells_as_spconv():

@@ -1,6 +1,6 @@
-"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, in training
-(spconv) and in inference (models.rulebook), the CPU patch is idempotent, and the sparse output becomes the BEV map
-exactly on 2 threads."""
+"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, and in
+inference (models.rulebook); training runs models.rulebook on 2 threads and spconv on 1, with the same outputs and
+gradients; the CPU patch is idempotent, and the sparse output becomes the BEV map exactly on 2 threads."""
 import subprocess
 import sys
 
@@ -135,6 +135,48 @@ def test_inference_runs_the_rulebook_and_equals_spconv_and_dense_conv3d_at_two_t
         dense = _dense_backbone(backbone, features[keep], coords[keep], shape)
         assert (ours[0].dense()[b] - dense[0]).abs().max().item() <= 1e-4 * scale
     assert torch.get_num_threads() == 2
+
+
+def test_training_runs_the_rulebook_on_two_threads_and_spconv_on_one_with_the_same_gradients(second_model_cfg,
+                                                                                            monkeypatch):
+    """Training mode (batch statistics in the BatchNorms), two frames, float64: the rulebook on 2 threads gives
+    spconv's output (on 1 thread) and the gradients of every parameter and of the features, the same bits on every
+    run. (In float32 the batch statistics of the deep layers, few cells each, amplify rounding to about 1 % of a
+    gradient, for spconv as for the rulebook against a float64 reference.)"""
+    torch.manual_seed(4)
+    backbone = VoxelBackBone8x(second_model_cfg().BACKBONE_3D, input_channels=4, grid_size=GRID).train().double()
+    generator = torch.Generator().manual_seed(4)
+    shape = backbone.sparse_shape
+    coords = torch.cat([torch.cat([torch.full((len(cells), 1), b), cells], dim=1)
+                        for b, cells in enumerate(_random_cells(shape, 3000, generator) for _ in range(2))])
+    features = torch.randn(len(coords), 4, generator=generator, dtype=torch.float64)
+    upstream = torch.randn(2, 128, 2, 6, 8, generator=generator, dtype=torch.float64)
+    calls = []
+    monkeypatch.setattr(rulebook, "run", lambda *args: calls.append(1) or run(*args))
+
+    def gradients(threads: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        backbone.zero_grad()
+        inputs = features.clone().requires_grad_()
+        previous = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            out = backbone({"voxel_features": inputs, "voxel_coords": coords.int(), "batch_size": 2})
+            dense = out["encoded_spconv_tensor"].dense()
+            (dense * upstream).sum().backward()
+        finally:
+            torch.set_num_threads(previous)
+        return dense.detach(), {"features": inputs.grad} | {n: p.grad.clone() for n, p in
+                                                            backbone.named_parameters()}
+
+    ours, again, reference = gradients(2), gradients(2), gradients(1)
+    assert len(calls) == 12  # two training steps of six sparse stages on 2 threads, none on 1
+    assert torch.equal(ours[0], again[0]) and all(torch.equal(ours[1][n], again[1][n]) for n in ours[1])
+    scale = reference[0].abs().max().item()
+    assert scale > 0.1 and (ours[0] - reference[0]).abs().max().item() <= 1e-12 * scale
+    assert len(ours[1]) == 1 + len(list(backbone.parameters()))
+    for name, grad in reference[1].items():
+        assert grad.abs().max() > 0, name
+        assert (ours[1][name] - grad).abs().max().item() <= 1e-12 * grad.abs().max().item(), name
 
 
 def test_patch_is_idempotent_and_single_thread_restores():
