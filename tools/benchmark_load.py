@@ -67,7 +67,7 @@ def measure(args) -> dict:
             times.append((time.perf_counter() - start) * 1000)
     train_set, _ = frames_for(cfg, training=True, count=2 * args.steps + 2)
     model.train()
-    step_ms = time_train_step(model, train_set, cfg, 2, args.steps, device)
+    step_ms, _ = time_train_step(model, train_set, cfg, 2, args.steps, device)
     return {"infer_ms": float(np.median(times[args.warmup:])), "train_step_ms": step_ms,
             "threads": float(np.mean(threads[args.warmup:]))}
 
