@@ -177,7 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--batch_size", type=int, default=2, help="frames per timed training step")
     parser.add_argument("--precisions", nargs="+", choices=PRECISIONS, default=[PRECISIONS[0]],
-                        help="inference precisions timed per profile (default: %(default)s; training is fp32)")
+                        help="precisions of the BEV part timed per profile, in inference and training (default: "
+                             "%(default)s; bf16 in training: OPTIMIZATION.USE_AMP on a CPU)")
     parser.add_argument("--variants", action="store_true",
                         help="also the speed-vs-error table: every variant trained with the --profile's budget")
     parser.add_argument("--profile", default="quick", help="the profile whose recipe the variants change")
@@ -199,10 +200,10 @@ def main(argv: list[str] | None = None) -> int:
                "head_stride": int(bev_output_stride(cfg.MODEL.BACKBONE_2D)), "frames": source,
                "params": sum(p.numel() for p in model.parameters())}
         row["infer_ms"], row["infer_ms_per_module"] = time_inference(model, dataset, args.frames, args.warmup, device)
-        if precision == PRECISIONS[0]:  # training is fp32 whatever the inference precision
-            train_frames, _ = frames_for(cfg, training=True, count=args.frames + args.warmup)
-            row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(
-                model, train_frames, cfg, args.batch_size, max(2, args.frames // 2), device)
+        model.set_precision(precision, training=True)  # the BEV part's precision in training too (USE_AMP)
+        train_frames, _ = frames_for(cfg, training=True, count=args.frames + args.warmup)
+        row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(
+            model, train_frames, cfg, args.batch_size, max(2, args.frames // 2), device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
@@ -243,7 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\ntraining step ms per phase (medians, batch {args.batch_size})\n")
     print("| config | " + " | ".join(phases) + " |\n|" + "---|" * (len(phases) + 1))
     for row in trained_rows:
-        print(f"| {row['config']} | " + " | ".join(f"{row['train_ms_per_phase'][p]:.1f}" for p in phases) + " |")
+        print(f"| {row['config']}, {row['precision']} | "
+              + " | ".join(f"{row['train_ms_per_phase'][p]:.1f}" for p in phases) + " |")
     write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows}, indent=2))
     return 0
 

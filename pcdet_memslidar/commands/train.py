@@ -49,7 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--wo-gpu-stat", "--wo_gpu_stat", action="store_true", default=False,
                         help=argparse.SUPPRESS)  # OpenPCDet's; there is no GPU statistic to leave out
     parser.add_argument("--use-amp", "--use_amp", action="store_true", default=False,
-                        help="mixed precision (CUDA only)")
+                        help="mixed precision, as OPTIMIZATION.USE_AMP: fp16 on a GPU, bf16 in the BEV backbone and "
+                             "head on a CPU with bf16 units")
     parser.add_argument("--val-interval", "--val_interval", type=int, default=1,
                         help="epochs between AP evaluations on the val split (tensorboard val/*); 0: none")
 

@@ -12,6 +12,7 @@ from torch import nn
 from pcdet_memslidar.grid import SPARSE_OUTPUT_CHANNELS, SPARSE_STRIDE, sparse_output_shape
 from pcdet_memslidar.models import rulebook
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
+from pcdet_memslidar.utils.cores import free_threads
 
 patch_spconv()
 _batch_norm = partial(nn.BatchNorm1d, eps=1e-3, momentum=0.01)
@@ -35,7 +36,9 @@ class VoxelBackBone8x(nn.Module):
 
     On a CPU models.rulebook runs the convs in inference, and in training on more than one torch thread (measured
     training step of the quick model: 14 % faster than spconv on two threads, 12 % slower on one, docs/results.md);
-    otherwise spconv runs them, on one torch thread on a CPU (its CPU kernels race with more, see spconv_cpu).
+    otherwise spconv runs them, on one torch thread on a CPU (its CPU kernels race with more, see spconv_cpu). In
+    training the rulebook's convs take only the cores other processes leave free at each step (their results do not
+    depend on the thread count), as inference does through runtime.common.threads_giving_way.
     """
 
     def __init__(self, model_cfg, input_channels: int, grid_size, **kwargs):
@@ -80,10 +83,11 @@ class VoxelBackBone8x(nn.Module):
             return batch_dict
         on_cpu = features.device.type == "cpu"
         use_rulebook = on_cpu and (not torch.is_grad_enabled() or torch.get_num_threads() > 1)
+        conv_threads = free_threads(torch.get_num_threads()) if use_rulebook and torch.is_grad_enabled() else None
         rulebooks = {}  # indice_key -> Rulebook, shared as spconv shares its indices
 
         def step(module, tensor):
-            return rulebook.run(module, tensor, rulebooks) if use_rulebook else module(tensor)
+            return rulebook.run(module, tensor, rulebooks, conv_threads) if use_rulebook else module(tensor)
 
         with single_thread() if on_cpu and not use_rulebook else contextlib.nullcontext():
             x = spconv.SparseConvTensor(features=features, indices=batch_dict["voxel_coords"].int(),

@@ -31,9 +31,20 @@ from pcdet_memslidar.models.post_processing import (
 )
 from pcdet_memslidar.models.vfe import MeanVFE
 
-# inference precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units
-# (AMX, AVX512-BF16) and GPUs; the sparse 3D part, box decoding and NMS stay fp32, and training is fp32
+# precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units (AMX,
+# AVX512-BF16) and GPUs; the sparse 3D part, box decoding, NMS, the loss and the weights stay fp32
 PRECISIONS = ("fp32", "bf16")
+
+
+
+def _float32(value):
+    """`value` (tensors in dicts and lists) with its bf16 tensors cast to fp32 (differentiably)."""
+    if isinstance(value, dict):
+        return {key: _float32(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_float32(item) for item in value]
+    return value.float() if isinstance(value, torch.Tensor) and value.dtype == torch.bfloat16 else value
+
 
 # OpenPCDet's registries: module NAME in the config -> class
 VFES = {"MeanVFE": MeanVFE}
@@ -61,6 +72,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
     dense_head_names: tuple[str, ...] = ()  # the heads a detector is made for (empty: any)
     precision = "fp32"  # one of PRECISIONS, for inference (set_precision)
+    train_precision = "fp32"  # one of PRECISIONS, for training (set_precision(..., training=True))
 
     def __init__(self, model_cfg, num_class: int, dataset):
         super().__init__()
@@ -118,14 +130,18 @@ class Detector3DTemplate(nn.Module, abc.ABC):
     def update_global_step(self) -> None:
         self.global_step += 1
 
-    def set_precision(self, precision: str) -> None:
-        """Inference precision of the BEV backbone and head (PRECISIONS); ConfigError for another."""
+    def set_precision(self, precision: str, training: bool = False) -> None:
+        """Precision of the BEV backbone and head (PRECISIONS) in inference, or in training with training=True (bf16:
+        their forward under autocast, their outputs back in fp32 for the loss); ConfigError for another."""
         if precision not in PRECISIONS:
             raise ConfigError(f"precision {precision!r}: use one of {', '.join(PRECISIONS)}")
-        self.precision = precision
+        if training:
+            self.train_precision = precision
+        else:
+            self.precision = precision
 
     def forward(self, batch_dict: dict):
-        bf16 = self.precision == "bf16" and not self.training
+        bf16 = (self.train_precision if self.training else self.precision) == "bf16"
         for module in self.module_list:
             dense_2d = module is self.backbone_2d or module is self.dense_head
             if bf16 and module is self.backbone_2d:  # NHWC: oneDNN's fast layout for bf16 convolutions
@@ -134,6 +150,8 @@ class Detector3DTemplate(nn.Module, abc.ABC):
             with torch.autocast(self.global_step.device.type, dtype=torch.bfloat16, enabled=bf16 and dense_2d):
                 batch_dict = module(batch_dict)
         if self.training:
+            if bf16:
+                self.dense_head.forward_ret_dict = _float32(self.dense_head.forward_ret_dict)
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
         pred_dicts = self.post_processing(batch_dict)

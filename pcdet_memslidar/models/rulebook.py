@@ -7,12 +7,16 @@ a rulebook and three dense steps:
   the input cells as output cells and centres the kernel);
 - per offset: gather the input rows, multiply by that offset's weight (a torch matrix product), add into the output
   rows. For one offset the pairs are one-to-one (an output cell takes at most one input, an input reaches at most
-  one output), so the adds of one offset never collide, forward or backward: the result does not depend on the
-  thread count, and offsets are summed in one fixed order.
+  one output), so the adds of one offset never collide, forward or backward, and offsets are summed in one fixed
+  order: the result does not depend on the thread count (torch's matrix products split rows and columns, not the
+  sum: tested), so a training's convs may run on fewer threads when other processes need the cores.
 Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
 (training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
 """
 from __future__ import annotations
+
+import contextlib
+from typing import Iterator
 
 import numba
 import numpy as np
@@ -200,16 +204,34 @@ def convolve(features: torch.Tensor, rules: Rulebook, weight: torch.Tensor, bias
     return out
 
 
+@contextlib.contextmanager
+def on_threads(threads: int) -> Iterator[None]:
+    """torch and numba on `threads` threads in the body, then back to torch's count before it."""
+    before = torch.get_num_threads()
+    if threads == before:
+        yield
+        return
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(min(before, numba.config.NUMBA_NUM_THREADS))
+        torch.set_num_threads(before)
+
+
 class SparseConvFunction(torch.autograd.Function):
-    """convolve() without bias, with its backward: for each offset k, grad_weight[k] = inputs' features^T @
-    grad_out[outputs] and grad_features[inputs] += grad_out[outputs] @ weight[k]^T (collision-free, see above)."""
+    """convolve() without bias, with its backward, both on `threads` threads: for each offset k, grad_weight[k] =
+    inputs' features^T @ grad_out[outputs] and grad_features[inputs] += grad_out[outputs] @ weight[k]^T
+    (collision-free, see above)."""
 
     @staticmethod
-    def forward(ctx, features: torch.Tensor, weight: torch.Tensor, rules: Rulebook) -> torch.Tensor:
+    def forward(ctx, features: torch.Tensor, weight: torch.Tensor, rules: Rulebook, threads: int) -> torch.Tensor:
         features, weight = features.contiguous(), weight.contiguous()
         ctx.save_for_backward(features, weight)
-        ctx.rules = rules
-        return convolve(features, rules, weight, weight.new_zeros(weight.shape[-1]))
+        ctx.rules, ctx.threads = rules, threads
+        with on_threads(threads):
+            return convolve(features, rules, weight, weight.new_zeros(weight.shape[-1]))
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
@@ -217,13 +239,14 @@ class SparseConvFunction(torch.autograd.Function):
         grad_out = grad_out.contiguous()
         grad_features = torch.zeros_like(features) if ctx.needs_input_grad[0] else None
         grad_weight = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
-        for k, inputs, outputs in ctx.rules.pairs:
-            grad_rows = grad_out.index_select(0, outputs)
-            if grad_weight is not None:
-                torch.mm(features.index_select(0, inputs).t(), grad_rows, out=grad_weight[k])
-            if grad_features is not None:
-                _scatter_add(grad_features.numpy(), inputs.numpy(), (grad_rows @ weight[k].t()).numpy())
-        return grad_features, grad_weight, None
+        with on_threads(ctx.threads):
+            for k, inputs, outputs in ctx.rules.pairs:
+                grad_rows = grad_out.index_select(0, outputs)
+                if grad_weight is not None:
+                    torch.mm(features.index_select(0, inputs).t(), grad_rows, out=grad_weight[k])
+                if grad_features is not None:
+                    _scatter_add(grad_features.numpy(), inputs.numpy(), (grad_rows @ weight[k].t()).numpy())
+        return grad_features, grad_weight, None, None
 
 
 def kernel_weight(conv: spconv.conv.SparseConvolution) -> torch.Tensor:
@@ -251,11 +274,13 @@ def _layers(module: nn.Module) -> list[nn.Module]:
     return [module]
 
 
-def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spconv.SparseConvTensor:
+def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict,
+        conv_threads: int | None = None) -> spconv.SparseConvTensor:
     """Forward of a SparseSequential of sparse convs, BatchNorm1d and ReLU on the CPU (the tensor's cells distinct,
     as spconv requires), with rulebooks shared through `cache` by indice_key as spconv shares its indices. Without
     grad an eval-mode BatchNorm is folded into the conv before it; with grad the convs are differentiable
-    (SparseConvFunction). numba runs on as many threads as torch."""
+    (SparseConvFunction) and run on `conv_threads` (default: torch's), forward and backward. numba runs on as many
+    threads as torch."""
     threads = torch.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # starts numba's OpenMP pool at the first
     torch.set_num_threads(threads)  # call, which sets OpenMP's thread count: torch's too (libgomp is shared)
@@ -270,7 +295,7 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict) -> spco
             if rules is None or rules.coords is not coords and not np.array_equal(rules.coords, coords):
                 rules = cache[key] = Rulebook(coords, shape, layer)
             if grad:
-                features = SparseConvFunction.apply(features, kernel_weight(layer), rules)
+                features = SparseConvFunction.apply(features, kernel_weight(layer), rules, conv_threads or threads)
                 features = features if layer.bias is None else features + layer.bias
             else:
                 following = layers[position + 1] if position + 1 < len(layers) else None

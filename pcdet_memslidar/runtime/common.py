@@ -10,7 +10,7 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
-from pcdet_memslidar.utils.cores import available_cores, runnable_elsewhere
+from pcdet_memslidar.utils.cores import available_cores, free_threads
 
 
 def set_random_seed(seed: int) -> None:
@@ -35,6 +35,11 @@ def default_workers() -> int:
     the cores to the model, and a 2-core machine gets no over-subscription warning), else OpenPCDet's 4, at most
     the free cores."""
     return min(4, available_cores()) if torch.cuda.is_available() else 0
+
+
+def cpu_has_bf16() -> bool:
+    """Whether this CPU computes bfloat16 in hardware (AVX512-BF16 or AMX), as oneDNN reports it."""
+    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def get_device(local_rank: int = 0) -> torch.device:
@@ -73,7 +78,7 @@ def threads_giving_way() -> Iterator[Callable[[], int]]:
     limit = torch.get_num_threads()
 
     def adapt() -> int:
-        threads = max(1, min(limit, available_cores() - runnable_elsewhere()))
+        threads = free_threads(limit)
         if threads != torch.get_num_threads():
             torch.set_num_threads(threads)
         return threads

@@ -19,6 +19,7 @@ from pcdet_memslidar.runtime.checkpoint import (
     save_checkpoint,
     unwrap,
 )
+from pcdet_memslidar.runtime.common import cpu_has_bf16
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.utils.progress import progress_bar
 
@@ -97,18 +98,27 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                 ckpt_save_time_interval: float = 300, use_tqdm_to_record: bool = False,
                 use_amp: bool = False, on_epoch_start=None, on_epoch_end=None) -> int:
     """Train from `start_epoch` to `total_epochs`; rank 0 writes checkpoints and logs. Returns the iteration
-    count reached. With merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts.
-    on_epoch_start(epoch) runs on every rank before each epoch's first batch (epoch counts from 0, OpenPCDet's
-    cur_epoch); on_epoch_end(epoch, mean_loss) after each epoch's checkpoint (epoch counts from 1)."""
+    count reached. Mixed precision (use_amp or OPTIMIZATION.USE_AMP): fp16 autocast and a gradient scaler on a GPU
+    (OpenPCDet's --use_amp); bf16 in the BEV backbone and head on a CPU that has bf16 units. With
+    merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts. on_epoch_start(epoch) runs
+    on every rank before each epoch's first batch (epoch counts from 0, OpenPCDet's cur_epoch); on_epoch_end(epoch,
+    mean_loss) after each epoch's checkpoint (epoch counts from 1)."""
     logger = logger or logging.getLogger(__name__)
     ckpt_save_dir = Path(ckpt_save_dir)
     accumulated_iter = start_iter
     iters_per_epoch = len(train_loader) // max(total_epochs, 1) if merge_all_iters_to_one_epoch else len(train_loader)
     if iters_per_epoch == 0:
         raise ValueError("the training split gives no batch: add frames or lower --batch-size")
+    use_amp = use_amp or bool(optim_cfg.get("USE_AMP", False))
     scaler = torch.amp.GradScaler("cuda") if use_amp and torch.device(device).type == "cuda" else None
     if use_amp and scaler is None:
-        logger.info("--use-amp is ignored on the CPU (spconv has no CPU half-precision kernels)")
+        if cpu_has_bf16():
+            unwrap(model).set_precision("bf16", training=True)
+            logger.info("mixed precision on the CPU: the BEV backbone and head train in bfloat16 (autocast); the "
+                        "sparse 3D part, the loss and the weights stay fp32")
+        else:
+            logger.info("mixed precision is off: this CPU has no bfloat16 units (AVX512-BF16 or AMX), and torch "
+                        "emulates bfloat16 slower than fp32; training in fp32")
     state = {"passes": 0}
     batches = _batches(train_loader, train_sampler, start_epoch, state)
     show_bar = rank == 0 and not use_tqdm_to_record

@@ -34,3 +34,8 @@ def runnable_elsewhere(samples: int = 5) -> int:
     except (OSError, ValueError, IndexError):
         return 0
     return max(0, sorted(counts)[len(counts) // 2])
+
+
+def free_threads(limit: int) -> int:
+    """Threads that leave the other processes' runnable threads a core each: between 1 and `limit`."""
+    return max(1, min(limit, available_cores() - runnable_elsewhere()))

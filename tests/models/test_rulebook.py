@@ -65,7 +65,32 @@ def test_backward_equals_finite_differences_in_float64(conv):
     weight = torch.randn(rulebook.kernel_weight(conv).shape, dtype=torch.float64, generator=generator,
                          requires_grad=True)
     assert len(rules.pairs) > 1
-    assert torch.autograd.gradcheck(lambda f, w: rulebook.SparseConvFunction.apply(f, w, rules), (features, weight))
+    assert torch.autograd.gradcheck(lambda f, w: rulebook.SparseConvFunction.apply(f, w, rules, 2),
+                                    (features, weight))
+
+
+def test_forward_and_backward_give_the_same_bits_on_one_and_two_threads():
+    """What lets a training's convs give way to other processes without changing its results."""
+    generator = torch.Generator().manual_seed(1)
+    shape = [20, 60, 60]
+    cells = torch.unique(torch.stack([torch.randint(0, s, (6000,), generator=generator) for s in shape], 1), dim=0)
+    coords = torch.cat([torch.zeros(len(cells), 1, dtype=torch.long), cells], 1).numpy()
+    features = torch.randn(len(coords), 64, generator=generator)
+    results = []
+    threads = torch.get_num_threads()
+    for conv in (spconv.SubMConv3d(64, 64, 3, bias=False), spconv.SparseConv3d(64, 64, 3, stride=2, padding=1,
+                                                                              bias=False)):
+        rules = rulebook.Rulebook(coords, shape, conv)
+        weight = torch.randn(rulebook.kernel_weight(conv).shape, generator=generator)
+        upstream = torch.randn(len(rules.coords), 64, generator=generator)
+        for count in (1, 2):
+            inputs, kernel = features.clone().requires_grad_(), weight.clone().requires_grad_()
+            out = rulebook.SparseConvFunction.apply(inputs, kernel, rules, count)
+            (out * upstream).sum().backward()
+            results.append((out.detach(), inputs.grad, kernel.grad))
+            assert torch.get_num_threads() == threads
+    for one, two in (results[0:2], results[2:4]):
+        assert all(torch.equal(a, b) for a, b in zip(one, two))
 
 
 def test_stride_2_conv_reaches_eight_output_cells_as_spconv():

@@ -80,3 +80,51 @@ def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path, seeded_model, sm
     assert len(shifts) >= 4 and 0 < max(shifts) <= 0.02, shifts  # > 0: bf16 did run
     with pytest.raises(ConfigError, match="precision 'fp16'"):
         model.set_precision("fp16")
+
+
+def test_bf16_training_runs_the_bev_part_in_bf16_and_keeps_loss_and_weights_fp32(frames, seeded_model):
+    """set_precision('bf16', training=True): the BEV backbone and head compute in bfloat16, their outputs come back
+    in fp32 for the loss, which is within 2 % of the fp32 loss; every gradient is fp32 and finite; inference keeps
+    its own precision."""
+    batch = frames.collate_batch([frames[i] for i in range(2)])
+    losses, dtypes = {}, {}
+    for precision in ("fp32", "bf16"):
+        model = seeded_model(frames).train()
+        model.set_precision(precision, training=True)
+        handle = model.backbone_2d.blocks[0].register_forward_hook(
+            lambda module, args, out, key=precision: None if dtypes.setdefault(key, out.dtype) else None)
+        ret, _, _ = model(load_data_to_device(dict(batch), "cpu"))
+        handle.remove()
+        ret["loss"].backward()
+        losses[precision] = ret["loss"]
+        assert model.precision == "fp32" and model.train_precision == precision
+        assert all(value.dtype == torch.float32 for value in model.dense_head.forward_ret_dict.values()
+                   if value.is_floating_point())
+        for name, parameter in model.named_parameters():
+            assert parameter.dtype == parameter.grad.dtype == torch.float32, name
+            assert torch.isfinite(parameter.grad).all(), name
+    assert dtypes == {"fp32": torch.float32, "bf16": torch.bfloat16}
+    assert losses["bf16"].dtype == torch.float32
+    assert losses["bf16"].item() != losses["fp32"].item()
+    assert abs(losses["bf16"].item() - losses["fp32"].item()) <= 0.02 * losses["fp32"].item()
+
+
+@pytest.mark.parametrize("has_bf16, expected", [(True, "bf16"), (False, "fp32")])
+def test_use_amp_on_the_cpu_trains_the_bev_part_in_bf16_only_where_the_cpu_has_bf16_units(
+        tmp_path, frames, seeded_model, small_optim_cfg, monkeypatch, caplog, has_bf16, expected):
+    from torch.utils.data import DataLoader
+
+    from pcdet_memslidar.runtime import train_loop
+    from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+
+    monkeypatch.setattr(train_loop, "cpu_has_bf16", lambda: has_bf16)
+    model = seeded_model(frames)
+    optim_cfg = EasyDict(small_optim_cfg() | {"USE_AMP": True})
+    loader = DataLoader(frames, batch_size=2, shuffle=False, collate_fn=frames.collate_batch)
+    optimizer = build_optimizer(model, optim_cfg)
+    scheduler = build_scheduler(optimizer, len(loader), 1, -1, optim_cfg)
+    with caplog.at_level(logging.INFO):
+        train_loop.train_model(model, optimizer, loader, scheduler, optim_cfg, 0, 1, 0, 0, None, tmp_path, "cpu",
+                               use_tqdm_to_record=True, logger=logging.getLogger("test"))
+    assert model.train_precision == expected and model.precision == "fp32"
+    assert ("this CPU has no bfloat16 units" in caplog.text) == (not has_bf16)

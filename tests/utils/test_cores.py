@@ -28,8 +28,8 @@ def test_runnable_elsewhere_is_a_count_and_zero_without_proc(monkeypatch):
 
 @pytest.mark.parametrize("elsewhere, expected", [(0, 2), (1, 1), (3, 1)])
 def test_inference_threads_give_way_to_other_processes_and_come_back(monkeypatch, elsewhere, expected):
-    monkeypatch.setattr(common, "available_cores", lambda: 2)
-    monkeypatch.setattr(common, "runnable_elsewhere", lambda: elsewhere)
+    monkeypatch.setattr(cores, "available_cores", lambda: 2)
+    monkeypatch.setattr(cores, "runnable_elsewhere", lambda: elsewhere)
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
