@@ -36,7 +36,6 @@ from pcdet_memslidar.models.vfe import MeanVFE
 PRECISIONS = ("fp32", "bf16")
 
 
-
 def _float32(value):
     """`value` (tensors in dicts and lists) with its bf16 tensors cast to fp32 (differentiably)."""
     if isinstance(value, dict):

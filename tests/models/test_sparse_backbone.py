@@ -1,6 +1,7 @@
-"""spconv on CPU: VoxelBackBone8x equals a dense conv3d reference at 2 threads, forward and backward, and in
-inference (models.rulebook); training runs models.rulebook on 2 threads and spconv on 1, with the same outputs and
-gradients; the CPU patch is idempotent, and the sparse output becomes the BEV map exactly on 2 threads."""
+"""spconv on CPU: VoxelBackBone8x (models.rulebook) and spconv (backward patched) equal a dense conv3d reference at
+2 threads, forward and backward, and in inference; training runs models.rulebook on 2 threads and spconv on 1, with
+the same outputs and gradients; the CPU patch is idempotent, and the sparse output becomes the BEV map exactly on 2
+threads."""
 import subprocess
 import sys
 
@@ -93,10 +94,22 @@ def test_sparse_backbone_equals_dense_conv3d_at_two_threads(two_threads, second_
     assert (sparse_out - dense_out).abs().max().item() <= 1e-4 * scale
 
     upstream = torch.randn(dense_out.shape, generator=generator)
-    (sparse_out * upstream).sum().backward()  # backward runs at 2 threads too (patched to one inside spconv)
+    (sparse_out * upstream).sum().backward()  # the rulebook's backward, at 2 threads
     (dense_out * upstream).sum().backward()
     grad_scale = dense_features.grad.abs().max().item()
     assert (features.grad - dense_features.grad).abs().max().item() <= 1e-4 * grad_scale
+
+    # spconv (OpenPCDet's path through the launcher): forward on one thread, backward at 2 threads (patched to one
+    # inside spconv; unpatched, its scatter-add races there)
+    spconv_features = features.detach().clone().requires_grad_()
+    with single_thread():
+        x = spconv.SparseConvTensor(spconv_features, coords.int(), shape, 1)
+        for stage in (backbone.conv_input, backbone.conv1, backbone.conv2, backbone.conv3, backbone.conv4,
+                      backbone.conv_out):
+            x = stage(x)
+    assert (x.dense() - dense_out).abs().max().item() <= 1e-4 * scale
+    (x.dense() * upstream).sum().backward()
+    assert (spconv_features.grad - dense_features.grad).abs().max().item() <= 1e-4 * grad_scale
     assert torch.get_num_threads() == 2
 
 
