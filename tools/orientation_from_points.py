@@ -18,7 +18,7 @@ import numpy as np
 from pcdet_memslidar.evaluation.diagnose import orientation_error_deg
 from pcdet_memslidar.evaluation.folders import read_label_folder
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
-from pcdet_memslidar.geometry.heading import main_axis
+from pcdet_memslidar.geometry.heading import main_axis, raise_bottoms
 from pcdet_memslidar.io.kitti import CLASS_NAME, read_points
 from pcdet_memslidar.io.layout import KittiLayout
 
@@ -39,10 +39,7 @@ def orientation_errors(root: Path, frames: int | None, min_points: int,
         if not len(boxes):
             continue
         points = read_points(layout.training / "velodyne" / f"{frame_id}.bin")
-        raised = boxes.copy()
-        raised[:, 2] += min_height / 2  # the bottom raised by min_height, the top kept
-        raised[:, 5] -= min_height
-        inside = points_in_boxes_mask(points[:, :3], raised)
+        inside = points_in_boxes_mask(points[:, :3], raise_bottoms(boxes, min_height))
         for index, box in enumerate(boxes):
             own = points[inside[:, index], :2]
             axis = main_axis(own) if len(own) >= min_points else None

@@ -18,6 +18,14 @@ def main_axis(points_xy: np.ndarray) -> float | None:
     return float(np.arctan2(vectors[1, -1], vectors[0, -1]))
 
 
+def raise_bottoms(boxes: np.ndarray, min_height: float) -> np.ndarray:
+    """A copy of (K, 7+) LiDAR boxes with each bottom raised by `min_height` [m] and the top kept."""
+    raised = np.array(boxes, dtype=np.float64, copy=True)
+    raised[:, 2] += min_height / 2
+    raised[:, 5] -= min_height
+    return raised
+
+
 def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
                            min_height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(K, 7+) LiDAR boxes, (N, 3+) points [m] -> (a copy of the boxes, (K,) bool: the box was oriented).
@@ -35,10 +43,8 @@ def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
     oriented = np.zeros(len(boxes), dtype=bool)
     if not len(boxes) or not len(points):
         return boxes, oriented
-    grown = check_boxes(boxes[:, :7]).copy()
+    grown = raise_bottoms(check_boxes(boxes[:, :7]), min_height)
     grown[:, 3:5] += 2 * margin
-    grown[:, 2] += min_height / 2  # the bottom raised by min_height, the top kept
-    grown[:, 5] -= min_height
     order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each box reads only its x slab
     sorted_x = points[order, 0]
     reach = np.hypot(grown[:, 3], grown[:, 4]) / 2
