@@ -26,13 +26,20 @@ def raise_bottoms(boxes: np.ndarray, min_height: float) -> np.ndarray:
     return raised
 
 
+MAX_SHIFTS = 5  # a box's window follows the mean of its points at most this often
+SHIFT_TOLERANCE = 0.01  # [m] a window that would move less than this has found its points
+
+
 def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
                            min_height: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(K, 7+) LiDAR boxes, (N, 3+) points [m] -> (a copy of the boxes, (K,) bool: the box was oriented).
 
-    The points of a box: inside it grown by `margin` [m] on every side in x and y, and at least `min_height` [m]
-    above its bottom (legs apart in a stride, and the floor, run along the walking direction, not the shoulders).
-    Each box with at least `min_points` of them and a main axis (main_axis) gets its long side (dx >= dy) along that
+    The points of a box: inside a window, the box grown by `margin` [m] on every side in x and y, and at least
+    `min_height` [m] above its bottom (legs apart in a stride, and the floor, run along the walking direction, not the
+    shoulders). The window then moves to the mean (x, y) of its points and takes the points there, until it would
+    move less than SHIFT_TOLERANCE or has moved MAX_SHIFTS times (mean shift: a detected centre is a tenth of a metre
+    or more off, and a window centred on the person holds more of it and less of its surroundings). Each box with at
+    least `min_points` points in its last window and a main axis (main_axis) gets its long side (dx >= dy) along that
     axis, heading in [-pi/2, pi/2); centre, sizes and extra columns are kept. The others are returned unchanged.
     """
     if min_points < 2 or not np.isfinite(margin) or margin < 0 or not np.isfinite(min_height) or min_height < 0:
@@ -43,18 +50,27 @@ def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
     oriented = np.zeros(len(boxes), dtype=bool)
     if not len(boxes) or not len(points):
         return boxes, oriented
-    grown = raise_bottoms(check_boxes(boxes[:, :7]), min_height)
-    grown[:, 3:5] += 2 * margin
-    order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each box reads only its x slab
+    windows = raise_bottoms(check_boxes(boxes[:, :7]), min_height)
+    windows[:, 3:5] += 2 * margin
+    order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each window reads only its x slab
     sorted_x = points[order, 0]
-    reach = np.hypot(grown[:, 3], grown[:, 4]) / 2
-    for index, box in enumerate(grown):
-        if box[5] <= 0:  # a box no taller than min_height keeps its heading
+
+    def inside(window: np.ndarray) -> np.ndarray:
+        """(M, 2) x, y of the points inside `window` (7,)."""
+        reach = np.hypot(window[3], window[4]) / 2
+        slab = points[order[np.searchsorted(sorted_x, window[0] - reach, side="left"):
+                            np.searchsorted(sorted_x, window[0] + reach, side="right")]]
+        return slab[points_in_boxes_mask(slab, window[None])[:, 0], :2]
+
+    for index, window in enumerate(windows):
+        if window[5] <= 0:  # a box no taller than min_height keeps its heading
             continue
-        low = np.searchsorted(sorted_x, box[0] - reach[index], side="left")
-        high = np.searchsorted(sorted_x, box[0] + reach[index], side="right")
-        slab = points[order[low:high]]
-        own = slab[points_in_boxes_mask(slab, box[None])[:, 0], :2]
+        own = inside(window)
+        for _ in range(MAX_SHIFTS):
+            if len(own) < min_points or np.hypot(*(own.mean(axis=0) - window[:2])) < SHIFT_TOLERANCE:
+                break
+            window[:2] = own.mean(axis=0)
+            own = inside(window)
         axis = main_axis(own) if len(own) >= min_points else None
         if axis is None:
             continue

@@ -72,6 +72,19 @@ def test_points_below_min_height_are_left_out():
     assert orient_boxes_by_points(box, points, 5, 0.0, min_height=1.7)[1].tolist() == [False]  # nothing left above
 
 
+def test_the_window_follows_its_points_off_a_detected_centre_and_drops_the_clutter():
+    person = _line(30.0, centre=(5.0, 0.0), count=9, half_length=0.2)  # x from 4.827 to 5.173
+    clutter = np.array([[5.62, -0.25]])
+    box = np.array([[5.3, 0.0, 0.85, 0.5, 0.5, 1.7, 0.0]])  # 0.3 m off; with the margin x in [4.95, 5.65]
+    first_window = np.vstack([person[3:], clutter])  # what the box itself holds: 6 of the person's points, the clutter
+    assert abs((np.degrees(main_axis(first_window)) - 30.0 + 90.0) % 180.0 - 90.0) > 50.0  # 53.8 deg off
+    # mean (5.144, -0.004): the window holds the whole person and not the clutter; mean (5, 0), where it stays
+    oriented, done = orient_boxes_by_points(box, _with_z(np.vstack([person, clutter]), z=1.2), 5, 0.1)
+    assert done.tolist() == [True]
+    assert oriented[0, 6] == pytest.approx(np.radians(30.0), abs=1e-12)
+    assert oriented[0, :2].tolist() == [5.3, 0.0]  # the box keeps its centre
+
+
 @pytest.mark.parametrize("min_points, margin, min_height", [(1, 0.1, 0.0), (5, -0.1, 0.0), (5, float("nan"), 0.0),
                                                             (5, 0.1, -0.5), (5, 0.1, float("inf"))])
 def test_settings_out_of_range_are_refused(min_points, margin, min_height):
