@@ -7,6 +7,9 @@ import numpy as np
 
 from .boxes import check_boxes, points_in_boxes_mask
 
+MAX_SHIFTS = 5  # a box's window follows the mean of its points at most this often
+SHIFT_TOLERANCE = 0.01  # [m] a window that would move less than this has found its points
+
 
 def main_axis(points_xy: np.ndarray) -> float | None:
     """Direction [rad] of the largest principal component of (N, 2) points [m]; None where the spread has no main
@@ -24,10 +27,6 @@ def raise_bottoms(boxes: np.ndarray, min_height: float) -> np.ndarray:
     raised[:, 2] += min_height / 2
     raised[:, 5] -= min_height
     return raised
-
-
-MAX_SHIFTS = 5  # a box's window follows the mean of its points at most this often
-SHIFT_TOLERANCE = 0.01  # [m] a window that would move less than this has found its points
 
 
 def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
@@ -67,9 +66,12 @@ def orient_boxes_by_points(boxes, points, min_points: int, margin: float,
             continue
         own = inside(window)
         for _ in range(MAX_SHIFTS):
-            if len(own) < min_points or np.hypot(*(own.mean(axis=0) - window[:2])) < SHIFT_TOLERANCE:
+            if len(own) < min_points:
                 break
-            window[:2] = own.mean(axis=0)
+            centre = own.mean(axis=0)
+            if np.hypot(*(centre - window[:2])) < SHIFT_TOLERANCE:
+                break
+            window[:2] = centre
             own = inside(window)
         axis = main_axis(own) if len(own) >= min_points else None
         if axis is None:
