@@ -3,8 +3,8 @@ one-stage detectors on it.
 
 Detector3DTemplate: MeanVFE -> VoxelBackBone8x -> HeightCompression -> BaseBEVBackbone -> a dense head, each looked
 up by its section's NAME, under OpenPCDet's module names (state dicts match OpenPCDet's key for key); the grid
-check, inference precision, the forward loop, the optional heading from points (POST_PROCESSING.HEADING_FROM_POINTS)
-and the recall record are shared. A detector adds its post-processing:
+check, inference precision, the forward loop, the optional box from its points (POST_PROCESSING.BOX_FROM_POINTS) and
+the recall record are shared. A detector adds its post-processing:
 - SECONDNet: AnchorHeadSingle; scores and boxes per anchor -> size filter, threshold, rotated NMS;
 - CenterPoint: CenterHead; the head decodes and suppresses itself (final_box_dicts).
 """
@@ -23,8 +23,8 @@ from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
 from pcdet_memslidar.models.center_head import CenterHead
 from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.post_processing import (
-    heading_from_points,
-    orient_by_points,
+    box_from_points,
+    fit_to_points,
     post_processing,
     recall_record,
     size_limits,
@@ -65,7 +65,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
 
     forward(batch_dict): in training ({'loss'}, tb_dict, disp_dict); in eval (pred_dicts, recall_dict), each
     pred_dict {pred_boxes (K, 7), pred_scores (K,), pred_labels (K,) 1-based}: the detector's post_processing, then,
-    with POST_PROCESSING.HEADING_FROM_POINTS, each box's heading from its points (models.post_processing).
+    with POST_PROCESSING.BOX_FROM_POINTS, each box's centre and heading from its points (models.post_processing).
     """
 
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
@@ -80,7 +80,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
         self.dataset = dataset
         self.class_names = list(dataset.class_names)
         self.register_buffer("global_step", torch.LongTensor(1).zero_())
-        self.heading_from_points = heading_from_points(model_cfg.POST_PROCESSING)
+        self.box_from_points = box_from_points(model_cfg.POST_PROCESSING)
         head = model_cfg.get("DENSE_HEAD", {}).get("NAME")
         if self.dense_head_names and head not in self.dense_head_names:
             raise ConfigError(f"MODEL.NAME {model_cfg.NAME} takes DENSE_HEAD.NAME {' or '.join(self.dense_head_names)}"
@@ -154,8 +154,8 @@ class Detector3DTemplate(nn.Module, abc.ABC):
             loss, tb_dict = self.dense_head.get_loss()
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
         pred_dicts = self.post_processing(batch_dict)
-        if self.heading_from_points is not None:
-            orient_by_points(pred_dicts, batch_dict["points"], *self.heading_from_points)
+        if self.box_from_points is not None:
+            fit_to_points(pred_dicts, batch_dict["points"], *self.box_from_points)
         recall_dict = {}
         for index, pred_dict in enumerate(pred_dicts if "gt_boxes" in batch_dict else []):
             recall_record(pred_dict["pred_boxes"], batch_dict["gt_boxes"][index],

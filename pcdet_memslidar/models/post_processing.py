@@ -1,12 +1,12 @@
 """Scores and boxes per anchor -> final detections: implausible sizes dropped, score threshold, top-k,
-class-agnostic rotated NMS; optionally each box's heading from its points (HEADING_FROM_POINTS, our key)."""
+class-agnostic rotated NMS; optionally each box's centre and heading from its points (BOX_FROM_POINTS, our key)."""
 from __future__ import annotations
 
 import numpy as np
 import torch
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.geometry.heading import orient_boxes_by_points
+from pcdet_memslidar.geometry.box_from_points import fit_boxes_to_points
 from pcdet_memslidar.geometry.iou import boxes_iou3d
 from pcdet_memslidar.geometry.nms import nms_rotated
 
@@ -91,35 +91,41 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
     return pred_dicts
 
 
-HEADING_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN", "MIN_HEIGHT")  # POST_PROCESSING.HEADING_FROM_POINTS, all required
+BOX_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN", "MIN_HEIGHT", "CENTER_DEPTH")  # POST_PROCESSING.BOX_FROM_POINTS
+BOX_EXAMPLE = "{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08}"
 
 
-def heading_from_points(post_process_cfg) -> tuple[int, float, float] | None:
-    """POST_PROCESSING.HEADING_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m], MIN_HEIGHT [m]} -> (min_points, margin,
-    min_height) (geometry.heading.orient_boxes_by_points), None when absent or not ENABLED; ConfigError for a
-    missing, unknown or out-of-range key."""
-    block = post_process_cfg.get("HEADING_FROM_POINTS")
+def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None] | None:
+    """POST_PROCESSING.BOX_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m], MIN_HEIGHT [m], CENTER_DEPTH [m] or None}
+    -> (min_points, margin, min_height, center_depth) (geometry.box_from_points.fit_boxes_to_points), None when
+    absent or not ENABLED; ConfigError for a missing, unknown or out-of-range key."""
+    block = post_process_cfg.get("BOX_FROM_POINTS")
     if block is None:
         return None
-    where = "POST_PROCESSING.HEADING_FROM_POINTS"
-    if not isinstance(block, dict) or set(block) != set(HEADING_KEYS):
-        raise ConfigError(f"{where} is {block!r}: write {{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4}} "
-                          f"(points inside a box grown by MARGIN m, MIN_HEIGHT m above its bottom or higher; with "
-                          f"fewer than MIN_POINTS the network's heading stays)")
-    enabled, min_points, margin, min_height = (block[key] for key in HEADING_KEYS)
+    where = "POST_PROCESSING.BOX_FROM_POINTS"
+    if not isinstance(block, dict) or set(block) != set(BOX_KEYS):
+        raise ConfigError(f"{where} is {block!r}: write {BOX_EXAMPLE} (points inside a box grown by MARGIN m, "
+                          f"MIN_HEIGHT m above its bottom or higher; the centre CENTER_DEPTH m behind their mean, or "
+                          f"null to keep it; with fewer than MIN_POINTS the network's box stays)")
+    enabled, min_points, margin, min_height, center_depth = (block[key] for key in BOX_KEYS)
     if not isinstance(enabled, bool):
         raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
         raise ConfigError(f"{where}.MIN_POINTS is {min_points!r}: use an integer >= 2")
-    for key, value in (("MARGIN", margin), ("MIN_HEIGHT", min_height)):
+    for key, value in (("MARGIN", margin), ("MIN_HEIGHT", min_height), ("CENTER_DEPTH", center_depth)):
+        if key == "CENTER_DEPTH" and value is None:
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 10:
-            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10)")
-    return (min_points, float(margin), float(min_height)) if enabled else None
+            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10)"
+                              f"{' or null' if key == 'CENTER_DEPTH' else ''}")
+    if not enabled:
+        return None
+    return min_points, float(margin), float(min_height), None if center_depth is None else float(center_depth)
 
 
-def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float,
-                     min_height: float) -> None:
-    """Lay each predicted box's long side along the main axis of its points (geometry.heading), in place.
+def fit_to_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float, min_height: float,
+                  center_depth: float | None) -> None:
+    """Fit each predicted box's centre and long side to its points (geometry.box_from_points), in place.
     points: (N, 1+3+C) [frame index in the batch, x, y, z, ...] as the batch's."""
     frame_of = points[:, 0].long()
     for index, pred_dict in enumerate(pred_dicts):
@@ -127,6 +133,6 @@ def orient_by_points(pred_dicts: list[dict], points: torch.Tensor, min_points: i
         if not len(boxes):
             continue
         own = points[frame_of == index, 1:4].detach().cpu().double().numpy()
-        oriented, _ = orient_boxes_by_points(boxes.detach().cpu().double().numpy(), own, min_points, margin,
-                                             min_height)
-        pred_dict["pred_boxes"] = torch.as_tensor(oriented, dtype=boxes.dtype, device=boxes.device)
+        fitted, _ = fit_boxes_to_points(boxes.detach().cpu().double().numpy(), own, min_points, margin, min_height,
+                                        center_depth)
+        pred_dict["pred_boxes"] = torch.as_tensor(fitted, dtype=boxes.dtype, device=boxes.device)

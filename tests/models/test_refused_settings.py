@@ -41,7 +41,7 @@ def test_an_unknown_optimizer_is_a_config_error():
     ("MODEL.DENSE_HEAD.USE_MULTIHEAD", "True"),
     ("OPTIMIZATION.OPTIMIZER", "lion"),
     ("HOOK.DisableAugmentationHook.NUM_LAST_EPOCHS", "1"),
-    ("MODEL.POST_PROCESSING.HEADING_FROM_POINTS.MIN_POINTS", "1"),
+    ("MODEL.POST_PROCESSING.BOX_FROM_POINTS.MIN_POINTS", "1"),
 ])
 def test_each_refused_value_is_one_line_through_the_cli(key, value, memslidar_data, tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_:

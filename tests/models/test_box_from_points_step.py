@@ -1,4 +1,4 @@
-"""POST_PROCESSING.HEADING_FROM_POINTS: the config block and the step after either head's post-processing."""
+"""POST_PROCESSING.BOX_FROM_POINTS: the config block and the step after either head's post-processing."""
 from pathlib import Path
 
 import numpy as np
@@ -8,28 +8,31 @@ from easydict import EasyDict
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.models.post_processing import heading_from_points, orient_by_points
+from pcdet_memslidar.models.post_processing import box_from_points, fit_to_points
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
 
 @pytest.mark.parametrize("cfg_file", ["m3.yaml", "centerpoint/m3.yaml"])
-def test_both_heads_orient_by_points_unless_set_to_none(cfg_file):
-    assert heading_from_points(load_config(CFGS / cfg_file).MODEL.POST_PROCESSING)[:2] == (5, 0.1)
-    cfg = load_config(CFGS / cfg_file, ["MODEL.POST_PROCESSING.HEADING_FROM_POINTS.ENABLED", "False"])
-    assert heading_from_points(cfg.MODEL.POST_PROCESSING) is None  # the network's own heading
+def test_both_heads_fit_boxes_to_points_unless_disabled(cfg_file):
+    assert box_from_points(load_config(CFGS / cfg_file).MODEL.POST_PROCESSING)[:2] == (5, 0.1)
+    cfg = load_config(CFGS / cfg_file, ["MODEL.POST_PROCESSING.BOX_FROM_POINTS.ENABLED", "False"])
+    assert box_from_points(cfg.MODEL.POST_PROCESSING) is None  # the network's own heading
 
 
-GOOD = {"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "MIN_HEIGHT": 0.5}
+GOOD = {"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "MIN_HEIGHT": 0.5, "CENTER_DEPTH": 0.08}
 
 
-def test_a_good_block_gives_its_three_settings():
-    assert heading_from_points(EasyDict({"HEADING_FROM_POINTS": GOOD})) == (5, 0.1, 0.5)
+def test_a_good_block_gives_its_four_settings():
+    assert box_from_points(EasyDict({"BOX_FROM_POINTS": GOOD})) == (5, 0.1, 0.5, 0.08)
+    assert box_from_points(EasyDict({"BOX_FROM_POINTS": {**GOOD, "CENTER_DEPTH": None}})) == (5, 0.1, 0.5, None)
 
 
 @pytest.mark.parametrize("change, message", [
-    ({"MIN_HEIGHT": None}, r"HEADING_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEI"),
-    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4}"),
+    ({"MIN_HEIGHT": None}, r"BOX_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEI"),
+    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08}"),
+    ({"CENTER_DEPTH": -0.1}, r"CENTER_DEPTH is -0.1: use metres in \[0, 10\) or null"),
+    ({"CENTER_DEPTH": "0.1"}, r"CENTER_DEPTH is '0.1': use metres in \[0, 10\) or null"),
     ({"ENABLED": "yes"}, r"ENABLED is 'yes': use True or False"),
     ({"MIN_POINTS": 1}, r"MIN_POINTS is 1: use an integer >= 2"),
     ({"MIN_POINTS": 5.5}, r"MIN_POINTS is 5.5: use an integer >= 2"),
@@ -40,21 +43,21 @@ def test_a_good_block_gives_its_three_settings():
 def test_a_malformed_block_is_refused_naming_the_fix(change, message):
     block = {key: value for key, value in {**GOOD, **change}.items() if value is not None}
     with pytest.raises(ConfigError, match=message):
-        heading_from_points(EasyDict({"HEADING_FROM_POINTS": block}))
+        box_from_points(EasyDict({"BOX_FROM_POINTS": block}))
 
 
 def test_a_block_that_is_not_a_mapping_is_refused():
     with pytest.raises(ConfigError, match="write {ENABLED: True"):
-        heading_from_points(EasyDict({"HEADING_FROM_POINTS": [5, 0.1]}))
+        box_from_points(EasyDict({"BOX_FROM_POINTS": [5, 0.1]}))
 
 
-def test_each_frame_of_a_batch_orients_its_boxes_by_its_own_points():
+def test_each_frame_of_a_batch_fits_its_boxes_to_its_own_points():
     line = np.linspace(-0.3, 0.3, 9)
     frame_1 = np.column_stack([np.ones(9), 4.0 + line, line, np.full(9, 0.8)])  # frame 1: points along x + y
     pred_dicts = [{"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.zeros((0, 7))}]
-    orient_by_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0, 0.0)
+    fit_to_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0, 0.0, None)
     assert pred_dicts[0]["pred_boxes"].tolist() == [[4.0, 0.0, 0.800000011920929, 0.5, 0.6000000238418579,
                                                      1.7000000476837158, 1.0]]  # frame 0 has no points: as it was
     assert pred_dicts[1]["pred_boxes"].dtype == torch.float32

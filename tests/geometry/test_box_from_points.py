@@ -1,8 +1,8 @@
-"""geometry/heading.py: a box's long side along the main axis of its own points."""
+"""geometry/box_from_points.py: a box's long side along the main axis of its own points, its centre behind them."""
 import numpy as np
 import pytest
 
-from pcdet_memslidar.geometry.heading import main_axis, orient_boxes_by_points
+from pcdet_memslidar.geometry.box_from_points import centre_behind, fit_boxes_to_points, main_axis
 
 
 def _line(degrees, centre=(5.0, -2.0), count=21, half_length=0.3):
@@ -27,7 +27,7 @@ def _with_z(points_xy, z=0.8):
 
 def test_a_square_box_gets_its_long_side_along_the_points():
     box = np.array([[5.0, -2.0, 0.8, 0.55, 0.56, 1.7, 0.3, 7.0]])  # dy > dx, an extra column
-    oriented, done = orient_boxes_by_points(box, _with_z(_line(120.0)), min_points=5, margin=0.0)
+    oriented, done = fit_boxes_to_points(box, _with_z(_line(120.0)), min_points=5, margin=0.0)
     assert done.tolist() == [True]
     assert oriented[0, 6] == pytest.approx(np.radians(-60.0), abs=1e-12)  # 120 deg is -60 deg for a rectangle
     assert oriented[0, [0, 1, 2, 3, 4, 5, 7]].tolist() == [5.0, -2.0, 0.8, 0.56, 0.55, 1.7, 7.0]
@@ -35,27 +35,27 @@ def test_a_square_box_gets_its_long_side_along_the_points():
 
 def test_points_along_x_give_heading_zero_whichever_sign_the_eigenvector_has():
     box = np.array([[0.0, 0.0, 0.8, 0.6, 0.6, 1.7, 1.0]])
-    oriented, _ = orient_boxes_by_points(box, _with_z(_line(0.0, centre=(0.0, 0.0))), 5, 0.0)
+    oriented, _ = fit_boxes_to_points(box, _with_z(_line(0.0, centre=(0.0, 0.0))), 5, 0.0)
     assert oriented[0, 6] == pytest.approx(0.0, abs=1e-12)
 
 
-def test_boxes_with_too_few_or_no_main_axis_or_outside_points_stay_as_they_are():
+def test_boxes_with_too_few_or_outside_points_or_no_main_axis_keep_their_heading():
     boxes = np.array([[0.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4],
                       [10.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4],
                       [20.0, 0.0, 0.8, 0.6, 0.5, 1.7, 0.4]])
     points = np.vstack([_with_z(_line(45.0, centre=(0.0, 0.0), count=4)),  # 4 < min_points
                         _with_z(np.zeros((6, 2)) + [10.0, 0.0]),  # one spot
                         _with_z(_line(45.0, centre=(20.0, 0.0)), z=3.0)])  # above the box
-    oriented, done = orient_boxes_by_points(boxes, points, 5, 0.1)
-    assert done.tolist() == [False, False, False]
+    oriented, done = fit_boxes_to_points(boxes, points, 5, 0.1)
+    assert done.tolist() == [False, True, False]  # the spot has its points, but no axis
     np.testing.assert_array_equal(oriented, boxes)
 
 
 def test_the_margin_takes_points_just_beside_the_box():
     box = np.array([[0.0, 0.0, 0.8, 0.4, 0.4, 1.7, 0.0]])
     beside = _with_z(_line(90.0, centre=(0.25, 0.0), half_length=0.15))  # 0.05 m outside the box in x
-    assert orient_boxes_by_points(box, beside, 5, 0.0)[1].tolist() == [False]
-    oriented, done = orient_boxes_by_points(box, beside, 5, 0.1)
+    assert fit_boxes_to_points(box, beside, 5, 0.0)[1].tolist() == [False]
+    oriented, done = fit_boxes_to_points(box, beside, 5, 0.1)
     assert done.tolist() == [True] and abs(oriented[0, 6]) == pytest.approx(np.pi / 2, abs=1e-12)
     assert oriented[0, 6] < 0  # headings in [-pi/2, pi/2)
 
@@ -65,11 +65,11 @@ def test_points_below_min_height_are_left_out():
     legs = _with_z(_line(0.0, centre=(0.0, 0.0)), z=0.3)  # a stride along x
     shoulders = _with_z(_line(90.0, centre=(0.0, 0.0), count=7, half_length=0.2), z=1.4)  # across, along y
     points = np.vstack([legs, shoulders])
-    assert orient_boxes_by_points(box, points, 5, 0.0)[0][0, 6] == pytest.approx(0.0, abs=1e-12)  # legs dominate
-    oriented, done = orient_boxes_by_points(box, points, 5, 0.0, min_height=0.8)
+    assert fit_boxes_to_points(box, points, 5, 0.0)[0][0, 6] == pytest.approx(0.0, abs=1e-12)  # legs dominate
+    oriented, done = fit_boxes_to_points(box, points, 5, 0.0, min_height=0.8)
     assert done.tolist() == [True] and oriented[0, 6] == pytest.approx(-np.pi / 2, abs=1e-12)
     assert oriented[0, 2] == 0.85 and oriented[0, 5] == 1.7  # the box itself is not raised
-    assert orient_boxes_by_points(box, points, 5, 0.0, min_height=1.7)[1].tolist() == [False]  # nothing left above
+    assert fit_boxes_to_points(box, points, 5, 0.0, min_height=1.7)[1].tolist() == [False]  # nothing left above
 
 
 def test_the_window_follows_its_points_off_a_detected_centre_and_drops_the_clutter():
@@ -79,14 +79,40 @@ def test_the_window_follows_its_points_off_a_detected_centre_and_drops_the_clutt
     first_window = np.vstack([person[3:], clutter])  # what the box itself holds: 6 of the person's points, the clutter
     assert abs((np.degrees(main_axis(first_window)) - 30.0 + 90.0) % 180.0 - 90.0) > 50.0  # 53.8 deg off
     # mean (5.144, -0.004): the window holds the whole person and not the clutter; mean (5, 0), where it stays
-    oriented, done = orient_boxes_by_points(box, _with_z(np.vstack([person, clutter]), z=1.2), 5, 0.1)
+    oriented, done = fit_boxes_to_points(box, _with_z(np.vstack([person, clutter]), z=1.2), 5, 0.1)
     assert done.tolist() == [True]
     assert oriented[0, 6] == pytest.approx(np.radians(30.0), abs=1e-12)
     assert oriented[0, :2].tolist() == [5.3, 0.0]  # the box keeps its centre
 
 
-@pytest.mark.parametrize("min_points, margin, min_height", [(1, 0.1, 0.0), (5, -0.1, 0.0), (5, float("nan"), 0.0),
-                                                            (5, 0.1, -0.5), (5, 0.1, float("inf"))])
-def test_settings_out_of_range_are_refused(min_points, margin, min_height):
-    with pytest.raises(ValueError, match="min_points >= 2, a margin >= 0 m and a min_height >= 0 m"):
-        orient_boxes_by_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin, min_height)
+def test_the_centre_lies_the_depth_behind_the_mean_along_the_sensors_ray():
+    assert centre_behind(np.array([[3.0, 4.0], [3.0, 4.0]]), 0.5).tolist() == pytest.approx([3.3, 4.4], abs=1e-15)
+    assert centre_behind(np.array([[-0.6, 0.0], [0.0, 0.8]]), 0.1).tolist() == pytest.approx([-0.36, 0.48], abs=1e-15)
+    assert centre_behind(np.array([[1.0, 0.0], [-1.0, 0.0]]), 0.1).tolist() == [0.0, 0.0]  # on the axis: no ray
+    assert centre_behind(np.array([[3.0, 4.0]]), 0.0).tolist() == [3.0, 4.0]
+
+
+def test_a_box_moves_behind_the_near_side_of_a_person_and_keeps_z_and_sizes():
+    near_side = _line(90.0, centre=(8.0, 0.0), count=9, half_length=0.2)  # shoulders across the ray, 8 m out
+    box = np.array([[8.12, 0.05, 0.85, 0.5, 0.56, 1.7, 0.0, 3.0]])  # the network's box, near the person
+    fitted, done = fit_boxes_to_points(box, _with_z(near_side, z=1.2), 5, 0.1, center_depth=0.08)
+    assert done.tolist() == [True]
+    assert fitted[0, :2].tolist() == pytest.approx([8.08, 0.0], abs=1e-12)  # the mean (8, 0), 0.08 m further out
+    assert fitted[0, 2:].tolist() == pytest.approx([0.85, 0.56, 0.5, 1.7, -np.pi / 2, 3.0], abs=1e-12)
+    kept, _ = fit_boxes_to_points(box, _with_z(near_side, z=1.2), 5, 0.1, center_depth=None)
+    assert kept[0, :2].tolist() == [8.12, 0.05]  # None: the network's centre
+
+
+def test_a_box_with_too_few_points_keeps_its_centre():
+    box = np.array([[8.0, 0.0, 0.85, 0.5, 0.5, 1.7, 0.0]])
+    fitted, done = fit_boxes_to_points(box, _with_z(_line(90.0, centre=(8.0, 0.0), count=4)), 5, 0.1,
+                                       center_depth=0.08)
+    assert done.tolist() == [False] and fitted.tolist() == box.tolist()
+
+
+@pytest.mark.parametrize("min_points, margin, min_height, depth", [
+    (1, 0.1, 0.0, None), (5, -0.1, 0.0, None), (5, float("nan"), 0.0, None), (5, 0.1, -0.5, None),
+    (5, 0.1, float("inf"), None), (5, 0.1, 0.0, -0.08), (5, 0.1, 0.0, float("nan"))])
+def test_settings_out_of_range_are_refused(min_points, margin, min_height, depth):
+    with pytest.raises(ValueError, match="min_points >= 2 and a margin, min_height and center_depth >= 0 m"):
+        fit_boxes_to_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin, min_height, depth)

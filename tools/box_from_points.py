@@ -1,0 +1,103 @@
+"""What do a person's own points show of its box? The long side of each labelled box against the main axis of the
+points inside it (principal component analysis in BEV), per number of points and per spread of the points; and how
+far the box's centre lies behind the mean of those points, along the sensor's ray.
+
+    python tools/box_from_points.py data/memslidar/industrial [--frames 150] [--min-points 5] [--min-height 0.4]
+        [--margin 0.1]
+
+A detector can only learn what the points show. If the main axis of a person's own points (the points inside its
+labelled box: the segmentation is given) follows the box's long side, the orientation is observable; the error of
+this estimate bounds what is lost to the sensor, not to the detector. Errors are angles between long sides, in [0, 90]
+deg (evaluation.diagnose.orientation_error_deg); 45 deg is what a guess scores on people facing every way. A LiDAR sees
+a person's near side: the median depth of the centre behind the points' mean is what POST_PROCESSING.BOX_FROM_POINTS
+.CENTER_DEPTH sets (measure it on training labels, with the step's MARGIN and MIN_HEIGHT).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.evaluation.diagnose import orientation_error_deg
+from pcdet_memslidar.evaluation.folders import read_label_folder
+from pcdet_memslidar.geometry.box_from_points import main_axis, raise_bottoms
+from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
+from pcdet_memslidar.io.kitti import CLASS_NAME, read_points
+from pcdet_memslidar.io.layout import KittiLayout
+
+POINT_BINS = ((5, 20), (20, 50), (50, 100), (100, None))  # points per person, lower bound included
+SPREAD_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 1.0))  # smaller / larger BEV variance, upper bound included
+
+
+def person_measurements(root: Path, frames: int | None, min_points: int, min_height: float = 0.0,
+                        margin: float = 0.0) -> dict[str, np.ndarray]:
+    """Every labelled person with at least min_points points in its window (its box grown by `margin` [m] in x and y,
+    from `min_height` [m] above its bottom) in the first `frames` frames of the KITTI folder `root`, as (P,) arrays:
+    'error' [deg] of the points' main axis against the long side (NaN: no main axis), 'count' of points, 'spread'
+    (the smaller over the larger variance in BEV, 1 for points as wide every way) and 'depth' [m] of the labelled
+    centre behind the points' mean along the ray from the sensor (negative: in front of it)."""
+    layout = KittiLayout(root)
+    labels = read_label_folder(layout.training / "label_2", with_score=False)
+    found = {"error": [], "count": [], "spread": [], "depth": []}
+    for frame_id in sorted(labels)[:frames]:
+        boxes = labels[frame_id]["boxes_lidar"][labels[frame_id]["name"] == CLASS_NAME]
+        if not len(boxes):
+            continue
+        windows = raise_bottoms(boxes, min_height)
+        windows[:, 3:5] += 2 * margin
+        points = read_points(layout.training / "velodyne" / f"{frame_id}.bin")
+        inside = points_in_boxes_mask(points[:, :3], windows)
+        for index, box in enumerate(boxes):
+            own = points[inside[:, index], :2].astype(np.float64)
+            if len(own) < min_points:
+                continue
+            axis = main_axis(own)
+            estimate = np.array([[*box[:3], 1.0, 0.5, box[5], axis if axis is not None else 0.0]])  # long side on it
+            found["error"].append(orientation_error_deg(estimate, box[None])[0] if axis is not None else np.nan)
+            found["count"].append(len(own))
+            variances = np.linalg.eigvalsh(np.cov(own.T))
+            found["spread"].append(variances[0] / variances[1])
+            mean = own.mean(axis=0)
+            found["depth"].append(float(np.dot(box[:2] - mean, mean / np.hypot(*mean))))
+    return {key: np.asarray(values, dtype=np.float64) for key, values in found.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("root", type=Path, help="a KITTI domain folder (training/velodyne, training/label_2)")
+    parser.add_argument("--frames", type=int, default=None, help="the first N frames (default: all)")
+    parser.add_argument("--min-points", type=int, default=5)
+    parser.add_argument("--min-height", type=float, default=0.0,
+                        help="only points this high above the box's bottom [m] (BOX_FROM_POINTS.MIN_HEIGHT)")
+    parser.add_argument("--margin", type=float, default=0.0,
+                        help="the box grown by this much on every side in x and y [m] (BOX_FROM_POINTS.MARGIN)")
+    args = parser.parse_args(argv)
+    people = person_measurements(args.root, args.frames, args.min_points, args.min_height, args.margin)
+    has_axis = ~np.isnan(people["error"])
+    errors, counts, spreads = people["error"][has_axis], people["count"][has_axis], people["spread"][has_axis]
+    print(f"{args.root}: {len(people['count'])} people with >= {args.min_points} points >= {args.min_height} m above "
+          f"the bottom, margin {args.margin} m; {len(errors)} with a main axis\n")
+    print("| points per person | people | median error (deg) | within 15 deg |\n|---|---|---|---|")
+    for low, high in ((args.min_points, None), *POINT_BINS):
+        chosen = (counts >= low) & (counts < (high or np.inf))
+        if chosen.any():
+            label = f"{low}+" if high is None else f"{low}-{high - 1}"
+            print(f"| {label}{' (all)' if low == args.min_points and high is None else ''} | {int(chosen.sum())} | "
+                  f"{np.median(errors[chosen]):.1f} | {np.mean(errors[chosen] <= 15):.0%} |")
+    print("\n| spread (smaller / larger variance) | people | median error (deg) | within 15 deg |\n|---|---|---|---|")
+    for low, high in SPREAD_BINS:
+        chosen = (spreads > low) & (spreads <= high) if low else spreads <= high
+        if chosen.any():
+            print(f"| {low:.1f}-{high:.1f} | {int(chosen.sum())} | {np.median(errors[chosen]):.1f} | "
+                  f"{np.mean(errors[chosen] <= 15):.0%} |")
+    depth = people["depth"]
+    if len(depth):
+        quartiles = np.percentile(depth, [25, 50, 75])
+        print(f"\nCentre behind the points' mean along the ray (CENTER_DEPTH): median {quartiles[1]:.3f} m, quartiles "
+              f"{quartiles[0]:.3f} .. {quartiles[2]:.3f} m, {len(depth)} people")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
