@@ -307,7 +307,7 @@ def plot_ap_intervals(path: str | Path, entries: list[dict], reference: float | 
     ax.set_yticks(rows, [entry["name"] for entry in entries])
     ax.set(xlabel="AP 3D R40 (IoU 0.5), industrial split", xlim=(0, 1), title="AP with bootstrap intervals")
     ax.grid(alpha=0.3, axis="x")
-    ax.legend(fontsize=8, loc="lower right")
+    figure.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="outside lower center", ncols=3)  # off the rows
     return save_figure(figure, path)
 
 
