@@ -21,7 +21,7 @@ import numpy as np
 
 from pcdet_memslidar.evaluation.diagnose import orientation_error_deg
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.geometry.box_from_points import main_axis, raise_bottoms
+from pcdet_memslidar.geometry.box_from_points import MIN_RANGE, main_axis, point_windows
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.io.kitti import CLASS_NAME, read_points
 from pcdet_memslidar.io.layout import KittiLayout
@@ -36,7 +36,8 @@ def person_measurements(root: Path, frames: int | None, min_points: int, min_hei
     from `min_height` [m] above its bottom) in the first `frames` frames of the KITTI folder `root`, as (P,) arrays:
     'error' [deg] of the points' main axis against the long side (NaN: no main axis), 'count' of points, 'spread'
     (the smaller over the larger variance in BEV, 1 for points as wide every way) and 'depth' [m] of the labelled
-    centre behind the points' mean along the ray from the sensor (negative: in front of it)."""
+    centre behind the points' mean along the ray from the sensor (negative: in front of it; NaN on the sensor's
+    axis, where there is no ray)."""
     layout = KittiLayout(root)
     labels = read_label_folder(layout.training / "label_2", with_score=False)
     found = {"error": [], "count": [], "spread": [], "depth": []}
@@ -44,10 +45,8 @@ def person_measurements(root: Path, frames: int | None, min_points: int, min_hei
         boxes = labels[frame_id]["boxes_lidar"][labels[frame_id]["name"] == CLASS_NAME]
         if not len(boxes):
             continue
-        windows = raise_bottoms(boxes, min_height)
-        windows[:, 3:5] += 2 * margin
         points = read_points(layout.training / "velodyne" / f"{frame_id}.bin")
-        inside = points_in_boxes_mask(points[:, :3], windows)
+        inside = points_in_boxes_mask(points[:, :3], point_windows(boxes, margin, min_height))
         for index, box in enumerate(boxes):
             own = points[inside[:, index], :2].astype(np.float64)
             if len(own) < min_points:
@@ -59,7 +58,8 @@ def person_measurements(root: Path, frames: int | None, min_points: int, min_hei
             variances = np.linalg.eigvalsh(np.cov(own.T))
             found["spread"].append(variances[0] / variances[1])
             mean = own.mean(axis=0)
-            found["depth"].append(float(np.dot(box[:2] - mean, mean / np.hypot(*mean))))
+            reach = float(np.hypot(*mean))
+            found["depth"].append(float(np.dot(box[:2] - mean, mean / reach)) if reach >= MIN_RANGE else np.nan)
     return {key: np.asarray(values, dtype=np.float64) for key, values in found.items()}
 
 
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         if chosen.any():
             print(f"| {low:.1f}-{high:.1f} | {int(chosen.sum())} | {np.median(errors[chosen]):.1f} | "
                   f"{np.mean(errors[chosen] <= 15):.0%} |")
-    depth = people["depth"]
+    depth = people["depth"][~np.isnan(people["depth"])]
     if len(depth):
         quartiles = np.percentile(depth, [25, 50, 75])
         print(f"\nCentre behind the points' mean along the ray (CENTER_DEPTH): median {quartiles[1]:.3f} m, quartiles "

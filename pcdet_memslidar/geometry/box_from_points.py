@@ -44,6 +44,14 @@ def raise_bottoms(boxes: np.ndarray, min_height: float) -> np.ndarray:
     return raised
 
 
+def point_windows(boxes: np.ndarray, margin: float, min_height: float) -> np.ndarray:
+    """(K, 7) windows of (K, 7+) LiDAR boxes: each grown by `margin` [m] on every side in x and y, its bottom raised
+    by `min_height` [m] (raise_bottoms)."""
+    windows = raise_bottoms(np.asarray(boxes)[:, :7], min_height)
+    windows[:, 3:5] += 2 * margin
+    return windows
+
+
 def fit_boxes_to_points(boxes, points, min_points: int, margin: float, min_height: float = 0.0,
                         center_depth: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(K, 7+) LiDAR boxes, (N, 3+) points [m] -> (a copy of the boxes, (K,) bool: the box had at least
@@ -68,8 +76,7 @@ def fit_boxes_to_points(boxes, points, min_points: int, margin: float, min_heigh
     fitted = np.zeros(len(boxes), dtype=bool)
     if not len(boxes) or not len(points):
         return boxes, fitted
-    windows = raise_bottoms(check_boxes(boxes[:, :7]), min_height)
-    windows[:, 3:5] += 2 * margin
+    windows = point_windows(check_boxes(boxes[:, :7]), margin, min_height)
     order = np.argsort(points[:, 0], kind="stable")  # points sorted by x: each window reads only its x slab
     sorted_x = points[order, 0]
 

@@ -112,12 +112,10 @@ def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None] 
         raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
         raise ConfigError(f"{where}.MIN_POINTS is {min_points!r}: use an integer >= 2")
-    for key, value in (("MARGIN", margin), ("MIN_HEIGHT", min_height), ("CENTER_DEPTH", center_depth)):
-        if key == "CENTER_DEPTH" and value is None:
-            continue
+    for key, value, fix in (("MARGIN", margin, ""), ("MIN_HEIGHT", min_height, ""),
+                            ("CENTER_DEPTH", 0.0 if center_depth is None else center_depth, " or null")):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 10:
-            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10)"
-                              f"{' or null' if key == 'CENTER_DEPTH' else ''}")
+            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10){fix}")
     if not enabled:
         return None
     return min_points, float(margin), float(min_height), None if center_depth is None else float(center_depth)
