@@ -5,13 +5,16 @@ into data, to device, forward, backward and optimizer), and a speed-vs-error tab
     python tools/benchmark_model.py --cfg cfgs/m3.yaml                 # latency: quick + paper profiles
     python tools/benchmark_model.py --cfg cfgs/m3.yaml cfgs/centerpoint/m3.yaml   # the two heads side by side
     python tools/benchmark_model.py --cfg cfgs/m3.yaml --variants      # + each variant trained with the budget
+    python tools/benchmark_model.py --cfg cfgs/m3.yaml --profiles paper --epochs 2   # + seconds per training epoch
 
 Frames come from the config's data when it exists (generate it first), else from synthetic person frames over
 the config's range (the table says which). Latency is measured first, alone on the machine; then every variant is
 trained with the --profile's budget (epochs, frames, optimiser), several at once in their own processes as in
 `memslidar reproduce`, and its saved predictions of the test split are scored (AP 3D R40 at IoU 0.5), next to
-the AP on its validation split after the last epoch and its training minutes. Results: a Markdown table on
-stdout and JSON in output/benchmark/model_benchmark.json (the report's AP-vs-time figure reads it).
+the AP on its validation split after the last epoch and its training minutes. With --epochs, each configuration
+also trains that many epochs with the training loop itself (loader workers, scheduler, checkpoints in a temporary
+folder), in fp32 and with mixed precision (USE_AMP: fp16 on a GPU, bf16 on a CPU with bf16 units). Results: a
+Markdown table on stdout and JSON in output/benchmark/model_benchmark.json (the report's AP-vs-time figure reads it).
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import argparse
 import copy
 import json
 import logging
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,9 +37,9 @@ from pcdet_memslidar.grid import bev_output_stride
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import build_network, load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
-from pcdet_memslidar.runtime.common import get_device, set_random_seed
+from pcdet_memslidar.runtime.common import default_workers, get_device, set_random_seed
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
-from pcdet_memslidar.runtime.train_loop import train_one_step
+from pcdet_memslidar.runtime.train_loop import prepare_training, train_model, train_one_step
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
@@ -153,6 +157,30 @@ def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) ->
     return float(np.median(times)), {name: float(np.median(ms)) for name, ms in phases.items()}
 
 
+def time_epochs(cfg, dataset, epochs: int, use_amp: bool, device) -> dict:
+    """Seconds of each of `epochs` epochs of runtime.train_loop.train_model on `dataset` (the config's batch size,
+    default_workers() loader workers, checkpoints into a temporary folder), steps per epoch, and the GPU's peak
+    memory [GiB] (0 on a CPU)."""
+    workers = default_workers()
+    loader = torch.utils.data.DataLoader(dataset, batch_size=cfg.OPTIMIZATION.BATCH_SIZE_PER_GPU, shuffle=True,
+                                         num_workers=workers, collate_fn=dataset.collate_batch, drop_last=True,
+                                         persistent_workers=workers > 0)
+    logger = logging.getLogger(__name__)
+    starts, seconds = [], []
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+    with tempfile.TemporaryDirectory(prefix="benchmark_epochs_") as ckpt_dir:
+        set_random_seed(0)
+        model, optimizer, scheduler, it, start = prepare_training(cfg, dataset, Path(ckpt_dir), device, len(loader),
+                                                                  epochs, logger)
+        train_model(model, optimizer, loader, scheduler, cfg.OPTIMIZATION, start, epochs, it, 0, None, ckpt_dir,
+                    device, use_tqdm_to_record=True, logger=logger, logger_iter_interval=100, use_amp=use_amp,
+                    on_epoch_start=lambda _: starts.append(time.perf_counter()),
+                    on_epoch_end=lambda *_: seconds.append(time.perf_counter() - starts[-1]))
+    peak = torch.cuda.max_memory_allocated(device) / 2**30 if device.type == "cuda" else 0.0
+    return {"steps_per_epoch": len(loader), "epoch_s": seconds, "workers": workers, "peak_gpu_gib": peak}
+
+
 def train_variants(variants: dict, out_dir: Path, threads: int) -> dict[str, dict]:
     """{name: {AP3D_R40 (test split), val_AP3D_R40 (last epoch), train_minutes}} of every variant trained with its
     config's budget, all at once in worker processes (experiments.runs.run_jobs) into out_dir/<name>."""
@@ -182,6 +210,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", action="store_true",
                         help="also the speed-vs-error table: every variant trained with the --profile's budget")
     parser.add_argument("--profile", default="quick", help="the profile whose recipe the variants change")
+    parser.add_argument("--epochs", type=int, default=0,
+                        help="also train each configuration this many epochs, fp32 and mixed precision (USE_AMP)")
+    parser.add_argument("--epoch_frames", type=int, default=1200,
+                        help="synthetic training frames per epoch where the config's data is missing")
     parser.add_argument("--set", dest="set_cfgs", nargs=argparse.REMAINDER, default=None)
     parser.add_argument("--output", default="output/benchmark/model_benchmark.json")
     args = parser.parse_args(argv)
@@ -207,11 +239,18 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
+    epoch_rows = []
     for cfg_file in args.cfg:
         for profile in args.profiles:
+            cfg = load_config(cfg_file, args.set_cfgs, profile=profile)
             for precision in args.precisions:
-                measure(f"{config_name(cfg_file)}/{profile}", load_config(cfg_file, args.set_cfgs, profile=profile),
-                        precision)
+                measure(f"{config_name(cfg_file)}/{profile}", cfg, precision)
+            if args.epochs:
+                frames, source = frames_for(cfg, training=True, count=args.epoch_frames)
+                for mode in ("fp32", "amp"):
+                    epoch_rows.append({"config": f"{config_name(cfg_file)}/{profile}", "mode": mode, "frames": source,
+                                       **time_epochs(cfg, frames, args.epochs, mode == "amp", device)})
+                    logging.getLogger(__name__).info(json.dumps(epoch_rows[-1]))
     if args.variants:
         variants = {}
         for cfg_file in args.cfg:
@@ -246,7 +285,15 @@ def main(argv: list[str] | None = None) -> int:
     for row in trained_rows:
         print(f"| {row['config']}, {row['precision']} | "
               + " | ".join(f"{row['train_ms_per_phase'][p]:.1f}" for p in phases) + " |")
-    write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows}, indent=2))
+    if epoch_rows:
+        print("\ntraining epochs (runtime.train_loop.train_model; s per epoch, the first includes warm-up)\n")
+        print("| config | mode | frames | steps/epoch | loader workers | s per epoch | peak GPU GiB |\n|" + "---|" * 7)
+        for row in epoch_rows:
+            seconds = ", ".join(f"{s:.1f}" for s in row["epoch_s"])
+            print(f"| {row['config']} | {row['mode']} | {row['frames']} | {row['steps_per_epoch']} | "
+                  f"{row['workers']} | {seconds} | {row['peak_gpu_gib']:.2f} |")
+    write_text(args.output, json.dumps({"device": str(device), "threads": args.threads, "rows": rows,
+                                        "epochs": epoch_rows}, indent=2))
     return 0
 
 

@@ -1,5 +1,6 @@
 """SECOND learns: every parameter gets a gradient, empty frames are handled, a few frames are overfitted (and found
-as well in bf16 inference)."""
+as well in bf16 inference), and a GPU gives the CPU's loss and gradients."""
+import copy
 import logging
 import pickle
 
@@ -128,3 +129,23 @@ def test_use_amp_on_the_cpu_trains_the_bev_part_in_bf16_only_where_the_cpu_has_b
                                use_tqdm_to_record=True, logger=logging.getLogger("test"))
     assert model.train_precision == expected and model.precision == "fp32"
     assert ("this CPU has no bfloat16 units" in caplog.text) == (not has_bf16)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_training_step_and_inference_on_the_gpu_match_the_cpu(frames, seeded_model):
+    """spconv's CUDA kernels against its CPU path (empty and boxless frames included): the same loss, gradients
+    pointing the same way (the GPU's convolutions may run in TF32), boxes on the GPU."""
+    model = seeded_model(frames).train()
+    gpu = copy.deepcopy(model).cuda()
+    batch = frames.collate_batch([frames[i] for i in range(4)])
+    cpu_loss = model(load_data_to_device(copy.deepcopy(batch), "cpu"))[0]["loss"]
+    gpu_loss = gpu(load_data_to_device(copy.deepcopy(batch), "cuda"))[0]["loss"]
+    assert gpu_loss.item() == pytest.approx(cpu_loss.item(), rel=1e-3)
+    cpu_loss.backward()
+    gpu_loss.backward()
+    for (name, on_cpu), on_gpu in zip(model.named_parameters(), gpu.parameters()):
+        cosine = torch.nn.functional.cosine_similarity(on_cpu.grad.flatten(), on_gpu.grad.cpu().flatten(), dim=0)
+        assert cosine > 0.999, (name, cosine.item())
+    with torch.no_grad():
+        preds, _ = gpu.eval()(load_data_to_device(copy.deepcopy(batch), "cuda"))
+    assert preds[0]["pred_boxes"].device.type == "cuda" and preds[0]["pred_boxes"].shape[1] == 7
