@@ -21,7 +21,7 @@ from pcdet_memslidar.geometry.boxes import fold_box_headings
 from pcdet_memslidar.io.kitti import CLASS_NAME
 
 from .matching import pair_ious
-from .metrics import evaluate, stack_class
+from .metrics import DISTANCE_BINS, bin_label, evaluate, stack_class
 
 MIN_BEV_IOU = 0.1  # a detection overlapping no ground truth this much is a false positive: left as it is
 SCORE_THRESHOLD = 0.3  # extent_agreement looks at detections at least this confident
@@ -102,10 +102,11 @@ def extent_agreement(gt_annos: list[dict], dt_annos: list[dict], score_threshold
     """How the boxes of detections scoring >= score_threshold follow those of their nearest ground truth.
 
     Returns {'pairs': n, 'length' | 'width' | 'height' [m] | 'heading' [deg]: _agreement, 'orientation':
-    {'median_abs_error' [deg], 'within_tolerance' (share of pairs within ORIENTATION_TOLERANCE_DEG)}}; length and
-    width are the larger and smaller BEV extents, heading the folded heading in [-45, 45) deg (its error wraps a
-    quarter turn), orientation the long side's (orientation_error_deg). With no pair every entry but 'pairs' is
-    None.
+    {'median_abs_error' [deg], 'within_tolerance' (share of pairs within ORIENTATION_TOLERANCE_DEG), 'by_distance':
+    {bin label: {'pairs', 'median_abs_error' (None without a pair)}} over metrics.DISTANCE_BINS of the labelled
+    box's BEV range}}; length and width are the larger and smaller BEV extents, heading the folded heading in
+    [-45, 45) deg (its error wraps a quarter turn), orientation the long side's (orientation_error_deg). With no pair
+    every entry but 'pairs' is None.
     """
     gt_boxes, dt_boxes, dt_scores, _, nearest = nearest_ground_truth(gt_annos, dt_annos, min_bev_iou, class_name)
     paired = (nearest >= 0) & (dt_scores >= score_threshold)
@@ -121,8 +122,15 @@ def extent_agreement(gt_annos: list[dict], dt_annos: list[dict], score_threshold
     result["heading"] = _agreement(heading_dt, heading_gt)
     result["heading"]["median_abs_error"] = float(np.median(np.abs((heading_dt - heading_gt + 45.0) % 90.0 - 45.0)))
     errors = orientation_error_deg(dt, gt)
+    distance = np.hypot(gt[:, 0], gt[:, 1])
+    by_distance = {}
+    for low, high in DISTANCE_BINS:
+        inside = errors[(distance >= low) & (distance < high)]
+        by_distance[bin_label(low, high)] = {"pairs": int(len(inside)),
+                                             "median_abs_error": float(np.median(inside)) if len(inside) else None}
     result["orientation"] = {"median_abs_error": float(np.median(errors)),
-                             "within_tolerance": float(np.mean(errors <= ORIENTATION_TOLERANCE_DEG))}
+                             "within_tolerance": float(np.mean(errors <= ORIENTATION_TOLERANCE_DEG)),
+                             "by_distance": by_distance}
     return result
 
 
@@ -147,4 +155,7 @@ def format_diagnosis(ablation: dict, agreement: dict) -> str:
         orientation = agreement["orientation"]
         lines.append(f"Long side's orientation (mod 180 deg): median error {orientation['median_abs_error']:.1f} deg, "
                      f"{100 * orientation['within_tolerance']:.0f} % within {ORIENTATION_TOLERANCE_DEG:g} deg")
+        lines.append("  by the person's range: " + ", ".join(
+            f"{label} {'-' if entry['median_abs_error'] is None else format(entry['median_abs_error'], '.1f')} deg "
+            f"({entry['pairs']} pairs)" for label, entry in orientation["by_distance"].items()))
     return "\n".join(lines)

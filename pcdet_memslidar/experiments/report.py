@@ -71,6 +71,7 @@ HEADLINE = "AP3D_R40"  # compared with the paper's AP: 3D IoU 0.5, OpenPCDet's d
 TABLE3_COLUMNS = ("AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11")
 INTERVAL_METRICS = TABLE3_COLUMNS  # bootstrap intervals of these (all distances)
 REFERENCE_MODEL = "M1"
+ORIENTATION = "orientation_error_deg"  # median angle [deg] between matched people's long sides (evaluation.diagnose)
 ORACLE = "oracle"  # in-domain training: Table 3 gives every model's difference to it
 DETECTOR_NAMES = {"SECONDNet": "SECOND", "CenterPoint": "CenterPoint"}  # MODEL.NAME -> Table 3's name
 LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
@@ -107,12 +108,15 @@ def gain_over_reference(models: dict, metric: str = HEADLINE, reference_model: s
 
 def score_run(gt_dir: Path, pred_dir: Path) -> dict:
     """A run's scores as JSON-ready run fields: the AP of its saved prediction labels against the ground-truth
-    labels and the median orientation error of its matched people -> {metrics (ap_summary and
-    orientation_error_deg, None without a pair), num_gt, num_dt, pr_curves {3D, BEV} (all distances)}."""
+    labels and the median orientation error of its matched people -> {metrics (ap_summary, orientation_error_deg
+    and orientation_error_deg_<distance bin>, None without a pair), num_gt, num_dt, pr_curves {3D, BEV} (all
+    distances)}."""
     gt_annos, dt_annos, _ = aligned_folders(gt_dir, pred_dir)
     result = evaluate(gt_annos, dt_annos, class_name=CLASS_NAME)
     orientation = extent_agreement(gt_annos, dt_annos)["orientation"]
-    metrics = ap_summary(result) | {"orientation_error_deg": orientation and orientation["median_abs_error"]}
+    metrics = ap_summary(result) | {ORIENTATION: orientation and orientation["median_abs_error"]}
+    for label, entry in (orientation or {}).get("by_distance", {}).items():
+        metrics[f"{ORIENTATION}_{label}"] = entry["median_abs_error"]
     return {"metrics": metrics, "num_gt": result["num_gt"], "num_dt": result["num_dt"],
             "pr_curves": {kind: result["pr_curves"][kind]["all"] for kind in ("3D", "BEV")}}
 
@@ -396,7 +400,7 @@ def table3(results: dict) -> list[str]:
     rows = []
     for name, model in models.items():
         mean, std, interval = model["mean"], model["std"], model.get("interval", {})
-        ms, orientation = mean.get("ms_per_frame"), mean.get("orientation_error_deg")
+        ms, orientation = mean.get("ms_per_frame"), mean.get(ORIENTATION)
         references = [counterpart(models, name, base) for base in (REFERENCE_MODEL, *[ORACLE] * with_oracle)]
         rows.append([name if name in PAPER_AP else f"{name} (not in the paper)",
                      DETECTOR_NAMES.get(model.get("detector", "SECONDNet"), model.get("detector")),
@@ -431,6 +435,21 @@ def bin_table(results: dict) -> list[str]:
     rows = [[name, *(ap_text(model["mean"].get(f"{HEADLINE}_{label}"), model["std"].get(f"{HEADLINE}_{label}"), seeds)
                      for label in labels)] for name, model in models.items()]
     return _table(["Model", *(f"{label} ({num_gt.get(label, 0)} gt)" for label in labels)], rows)
+
+
+def orientation_bin_table(results: dict) -> list[str]:
+    """Markdown lines of the median orientation error [deg] of matched people per distance bin (the AP bins), with
+    the seeds' standard deviation; [] for results scored before the bins."""
+    models, seeds = results["models"], len(results["seeds"])
+    labels = [label for label in _bin_labels(models) if f"{ORIENTATION}_{label}" in next(iter(models.values()))["mean"]]
+    if not labels:
+        return []
+
+    def cell(model: dict, label: str) -> str:
+        mean, std = model["mean"].get(f"{ORIENTATION}_{label}"), model["std"].get(f"{ORIENTATION}_{label}")
+        return "n/a" if mean is None else f"{mean:.1f} ± {std:.1f}" if seeds > 1 else f"{mean:.1f}"
+    rows = [[name, *(cell(model, label) for label in labels)] for name, model in models.items()]
+    return _table(["Model", *labels], rows)
 
 
 def _environment_lines(results: dict) -> list[str]:
@@ -502,7 +521,7 @@ def render_report(results: dict) -> str:
     seed_note = (f"mean ± standard deviation over {len(seeds)} training seeds {seeds}" if len(seeds) > 1
                  else f"one training seed ({seeds[0]})")
     overrides = f" with overrides `{' '.join(results['overrides'])}`" if results.get("overrides") else ""
-    finetune, note = finetune_statement(results), interval_note(results)
+    finetune, note, orientation = finetune_statement(results), interval_note(results), orientation_bin_table(results)
     lines = [
         "# M1-M4 reproduction report", "",
         f"- profile: **{results['profile']}**{overrides}; {seed_note}",
@@ -529,6 +548,10 @@ def render_report(results: dict) -> str:
         *([finetune, ""] if finetune else []),
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",
         *bin_table(results), "",
+        *(["### Orientation error per distance bin (median deg over matched people)", "",
+           "A far person's few returns are about as wide every way, and their main axis is little better than a "
+           "guess (45 deg on people facing every way): a model that finds more far people has a larger overall "
+           "error.", "", *orientation, ""] if orientation else []),
         *_figure_lines(results),
         "## Data", "",
         *_data_lines(results), "",

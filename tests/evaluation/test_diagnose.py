@@ -125,14 +125,22 @@ def test_orientation_error_respects_the_rectangles_symmetry(predicted, labelled,
 
 def test_orientation_in_the_agreement_of_exact_and_of_constant_boxes():
     gt_boxes = _people(4)
+    gt_boxes[:, :2] = [[5.0, 0.0], [15.0, 0.0], [20.0, 2.0], [12.0, -1.0]]  # ranges 5, 15, 20.1, 12.04 m
     gt_boxes[:, 3:5] = [0.8, 0.5]
     gt_boxes[:, 6] = np.radians([0.0, 10.0, 60.0, 100.0])  # long sides at 0, 10, 60, -80 deg
     exact = extent_agreement(*_frames(gt_boxes, gt_boxes))["orientation"]
-    assert exact == {"median_abs_error": 0.0, "within_tolerance": 1.0}
+    assert exact == {"median_abs_error": 0.0, "within_tolerance": 1.0, "by_distance": {
+        "0-10m": {"pairs": 1, "median_abs_error": 0.0}, "10-20m": {"pairs": 2, "median_abs_error": 0.0},
+        "20+m": {"pairs": 1, "median_abs_error": 0.0}}}
     constant = gt_boxes.copy()
     constant[:, 6] = 0.0  # errors 0, 10, 60, 80
     result = extent_agreement(*_frames(gt_boxes, constant))["orientation"]
     assert result["median_abs_error"] == pytest.approx(35.0, abs=1e-9) and result["within_tolerance"] == 0.5
+    by_distance = {label: (entry["pairs"], entry["median_abs_error"]) for label, entry in result["by_distance"].items()}
+    assert by_distance == {"0-10m": (1, 0.0), "10-20m": (2, pytest.approx(45.0, abs=1e-9)),
+                           "20+m": (1, pytest.approx(60.0, abs=1e-9))}
+    near = extent_agreement(*_frames(gt_boxes[:2], constant[:2]))["orientation"]["by_distance"]
+    assert near["20+m"] == {"pairs": 0, "median_abs_error": None}  # a bin without a pair has no median
 
 
 def test_low_scores_and_no_overlap_give_no_pairs():

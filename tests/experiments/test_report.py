@@ -12,7 +12,9 @@ from pcdet_memslidar.experiments.report import (
     counterpart,
     gain_over_reference,
     order_statement,
+    orientation_bin_table,
     render_report,
+    score_run,
     summarise_runs,
     table2,
     table3,
@@ -217,6 +219,32 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     text = (out / "report.md").read_text()
     assert "Brackets: 95 % bootstrap percentile interval over the 2 test frames (200 resamples" in text
     assert rows[4] in text
+
+
+def test_orientation_error_per_distance_bin_from_labels_to_the_report(tmp_path):
+    # one person per frame at 5, 15 and 25 m; the predictions turned by 0, 30 and 90 deg
+    for folder, turns in (("gt", (0.0, 0.0, 0.0)), ("pred", (0.0, 30.0, 90.0))):
+        for index, (x, turn) in enumerate(zip((5.0, 15.0, 25.0), turns)):
+            box = np.array([[x, 0.0, 0.9, 0.8, 0.5, 1.8, np.radians(turn)]])
+            write_label(tmp_path / folder / f"{index:06d}.txt", label_from_boxes(
+                ["Pedestrian"], box, Calibration.virtual(), None if folder == "gt" else np.array([0.9])))
+    metrics = score_run(tmp_path / "gt", tmp_path / "pred")["metrics"]
+    by_distance = {key: metrics[key] for key in metrics if key.startswith("orientation_error_deg")}
+    assert by_distance == pytest.approx({"orientation_error_deg": 30.0, "orientation_error_deg_0-10m": 0.0,
+                                         "orientation_error_deg_10-20m": 30.0, "orientation_error_deg_20+m": 90.0},
+                                        abs=0.5)  # KITTI labels keep rotation_y to 0.01 rad
+
+    results = make_results({"M1": 0.1, "M3": 0.5}, seeds=(0, 1))
+    for name, (near, middle) in {"M1": (12.0, 20.5), "M3": (8.25, None)}.items():
+        model = results["models"][name]
+        model["mean"] |= {"orientation_error_deg_0-10m": near, "orientation_error_deg_10-20m": middle}
+        model["std"] |= {"orientation_error_deg_0-10m": 1.5, "orientation_error_deg_10-20m": None if middle is None
+                         else 0.0}
+    assert orientation_bin_table(results) == ["| Model | 0-10m | 10-20m |", "|---|---|---|",
+                                              "| M1 | 12.0 ± 1.5 | 20.5 ± 0.0 |", "| M3 | 8.2 ± 1.5 | n/a |"]
+    assert "### Orientation error per distance bin" in render_report(results)
+    assert orientation_bin_table(make_results({"M1": 0.1})) == []  # results scored before the bins: no table
+    assert "### Orientation error" not in render_report(make_results({"M1": 0.1}))
 
 
 def test_a_second_head_is_compared_with_its_own_m1_and_oracle():
