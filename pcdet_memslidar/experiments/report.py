@@ -549,9 +549,9 @@ def render_report(results: dict) -> str:
         "### AP 3D R40 per distance bin (BEV range from the sensor)", "",
         *bin_table(results), "",
         *(["### Orientation error per distance bin (median deg over matched people)", "",
-           "A far person's few returns are about as wide every way, and their main axis is little better than a "
-           "guess (45 deg on people facing every way): a model that finds more far people has a larger overall "
-           "error.", "", *orientation, ""] if orientation else []),
+           "A far person's few returns are about as wide every way, and their main axis tells little of the "
+           "person's (a guess scores 45 deg on people facing every way): a model that finds more far people has a "
+           "larger overall error.", "", *orientation, ""] if orientation else []),
         *_figure_lines(results),
         "## Data", "",
         *_data_lines(results), "",
