@@ -98,17 +98,20 @@ class DatasetTemplate(torch.utils.data.Dataset):
     def collate_batch(batch_list: list[dict], _unused: bool = False) -> dict:
         """Samples -> one batch_dict with OpenPCDet's keys and dtypes.
 
-        points (sum N, 1+C) and voxel_coords (sum V, 4) get the sample index as first column; voxels and
-        voxel_num_points are concatenated; gt_boxes are zero-padded to (B, max M, 8) float32; metadata becomes a
-        (B,) object array of dicts; other keys are stacked; batch_size is added.
+        points (sum N, 1+C) and voxel_coords (sum V, 4) get the sample index as first column; voxels,
+        voxel_num_points and point_times (sum N,) are concatenated (point_times only where every sample has them);
+        gt_boxes are zero-padded to (B, max M, 8) float32; metadata becomes a (B,) object array of dicts; other keys
+        are stacked; batch_size is added.
         """
         values = defaultdict(list)
         for sample in batch_list:
             for key, value in sample.items():
                 values[key].append(value)
+        if len(values.get("point_times", [])) != len(batch_list):  # frames without their points' times in the batch
+            values.pop("point_times", None)
         batch = {}
         for key, items in values.items():
-            if key in ("voxels", "voxel_num_points"):
+            if key in ("voxels", "voxel_num_points", "point_times"):
                 batch[key] = np.concatenate(items, axis=0)
             elif key in ("points", "voxel_coords"):
                 batch[key] = np.concatenate([np.pad(item, ((0, 0), (1, 0)), constant_values=index)

@@ -117,16 +117,21 @@ class MEMSLidarDataset(*_template_bases()):
                            f"and POINT_CLOUD_RANGE cropping: check that the range covers the labelled people")
 
     def get_frame(self, index: int) -> dict:
-        """Raw input of frame `index`: points (N, 4) float32, gt_names (M,), gt_boxes (M, 7), frame_id, metadata."""
+        """Raw input of frame `index`: points (N, 4) float32, gt_names (M,), gt_boxes (M, 7), frame_id, metadata; in
+        testing also point_times (N,) float32 [s] where the frame keeps its time offsets (the box step's drift)."""
         info = self.infos[index]
         layout = KittiLayout(info["root"])
-        return {
+        frame = {
             "points": kitti.read_points(layout.velodyne(info["frame_id"])),
             "gt_names": np.asarray(info["annos"]["name"]),
             "gt_boxes": np.asarray(info["annos"]["gt_boxes_lidar"], dtype=np.float32).reshape(-1, 7),
             "frame_id": f"{info['source']}/{info['frame_id']}",
             "metadata": {"source": info["source"], "frame_id": info["frame_id"]},
         }
+        times = layout.time_offset(info["frame_id"])
+        if not self.training and times.is_file():
+            frame["point_times"] = kitti.read_point_times(times, len(frame["points"]))
+        return frame
 
     def gt_annos(self) -> list[dict]:
         """Ground truth of every frame: {frame_id, name (M,), boxes_lidar (M, 7)}."""

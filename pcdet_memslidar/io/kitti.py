@@ -74,6 +74,21 @@ def read_points(path: str | Path) -> np.ndarray:
     return _check_points(path, np.frombuffer(data, dtype="<f4").reshape(-1, 4).copy())
 
 
+def read_point_times(path: str | Path, num_points: int) -> np.ndarray:
+    """(num_points,) float32 time offsets [s] of a frame's points from a training/time_offset .bin file."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "time offset file not found")
+    data = path.read_bytes()
+    if len(data) != 4 * num_points:
+        raise DataFormatError(path, f"{len(data) / 4:g} time offsets for {num_points} points: the frame's velodyne "
+                                    "file and this one differ; write the frame again")
+    times = np.frombuffer(data, dtype="<f4").copy()
+    if not np.isfinite(times).all():
+        raise DataFormatError(path, "NaN or inf time offsets: write the frame again")
+    return times
+
+
 def write_points(path: str | Path, points: np.ndarray) -> None:
     """Write (N, 4) [x, y, z, intensity] points as little-endian float32 to a velodyne .bin file (atomic)."""
     points = _check_points(path, points)

@@ -40,6 +40,11 @@ class KittiLayout:
     def velodyne(self, frame_id: str) -> Path:
         return self.training / "velodyne" / f"{frame_id}.bin"
 
+    def time_offset(self, frame_id: str) -> Path:
+        """training/time_offset/<id>.bin: float32 per-point time offsets [s] from the frame's first pulse (written by
+        `memslidar simulate`; optional)."""
+        return self.training / "time_offset" / f"{frame_id}.bin"
+
     def label(self, frame_id: str) -> Path:
         return self.training / "label_2" / f"{frame_id}.txt"
 

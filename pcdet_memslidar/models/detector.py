@@ -155,7 +155,8 @@ class Detector3DTemplate(nn.Module, abc.ABC):
             return {"loss": loss}, {"loss_rpn": loss.item(), **tb_dict}, {}
         pred_dicts = self.post_processing(batch_dict)
         if self.box_from_points is not None:
-            fit_to_points(pred_dicts, batch_dict["points"], *self.box_from_points)
+            fit_to_points(pred_dicts, batch_dict["points"], *self.box_from_points,
+                          point_times=batch_dict.get("point_times"))
         recall_dict = {}
         for index, pred_dict in enumerate(pred_dicts if "gt_boxes" in batch_dict else []):
             recall_record(pred_dict["pred_boxes"], batch_dict["gt_boxes"][index],

@@ -91,14 +91,17 @@ def post_processing(batch_dict: dict, post_process_cfg, limits: torch.Tensor | N
     return pred_dicts
 
 
-BOX_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN", "MIN_HEIGHT", "CENTER_DEPTH")  # POST_PROCESSING.BOX_FROM_POINTS
-BOX_EXAMPLE = "{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08}"
+BOX_KEYS = ("ENABLED", "MIN_POINTS", "MARGIN", "MIN_HEIGHT", "CENTER_DEPTH",  # POST_PROCESSING.BOX_FROM_POINTS
+            "MIN_DRIFT_SPEED")
+BOX_EXAMPLE = ("{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08, "
+               "MIN_DRIFT_SPEED: 0.5}")
 
 
-def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None] | None:
-    """POST_PROCESSING.BOX_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m], MIN_HEIGHT [m], CENTER_DEPTH [m] or None}
-    -> (min_points, margin, min_height, center_depth) (geometry.box_from_points.fit_boxes_to_points), None when
-    absent or not ENABLED; ConfigError for a missing, unknown or out-of-range key."""
+def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None, float | None] | None:
+    """POST_PROCESSING.BOX_FROM_POINTS {ENABLED, MIN_POINTS, MARGIN [m], MIN_HEIGHT [m], CENTER_DEPTH [m] or None,
+    MIN_DRIFT_SPEED [m/s] or None} -> (min_points, margin, min_height, center_depth, min_drift_speed)
+    (geometry.box_from_points.fit_boxes_to_points), None when absent or not ENABLED; ConfigError for a missing,
+    unknown or out-of-range key."""
     block = post_process_cfg.get("BOX_FROM_POINTS")
     if block is None:
         return None
@@ -106,8 +109,10 @@ def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None] 
     if not isinstance(block, dict) or set(block) != set(BOX_KEYS):
         raise ConfigError(f"{where} is {block!r}: write {BOX_EXAMPLE} (points inside a box grown by MARGIN m, "
                           f"MIN_HEIGHT m above its bottom or higher; the centre CENTER_DEPTH m behind their mean, or "
-                          f"null to keep it; with fewer than MIN_POINTS the network's box stays)")
-    enabled, min_points, margin, min_height, center_depth = (block[key] for key in BOX_KEYS)
+                          f"null to keep it; the long side along the points' drift where it is MIN_DRIFT_SPEED m/s "
+                          f"or faster, or null for their main axis only; with fewer than MIN_POINTS the network's "
+                          f"box stays)")
+    enabled, min_points, margin, min_height, center_depth, min_drift_speed = (block[key] for key in BOX_KEYS)
     if not isinstance(enabled, bool):
         raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
@@ -116,21 +121,28 @@ def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None] 
                             ("CENTER_DEPTH", 0.0 if center_depth is None else center_depth, " or null")):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 10:
             raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10){fix}")
+    speed = 0.0 if min_drift_speed is None else min_drift_speed
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 <= speed < 10:
+        raise ConfigError(f"{where}.MIN_DRIFT_SPEED is {min_drift_speed!r}: use metres per second in [0, 10) or null")
     if not enabled:
         return None
-    return min_points, float(margin), float(min_height), None if center_depth is None else float(center_depth)
+    return (min_points, float(margin), float(min_height), None if center_depth is None else float(center_depth),
+            None if min_drift_speed is None else float(min_drift_speed))
 
 
 def fit_to_points(pred_dicts: list[dict], points: torch.Tensor, min_points: int, margin: float, min_height: float,
-                  center_depth: float | None) -> None:
+                  center_depth: float | None, min_drift_speed: float | None = None,
+                  point_times: torch.Tensor | None = None) -> None:
     """Fit each predicted box's centre and long side to its points (geometry.box_from_points), in place.
-    points: (N, 1+3+C) [frame index in the batch, x, y, z, ...] as the batch's."""
+    points: (N, 1+3+C) [frame index in the batch, x, y, z, ...] as the batch's; point_times (N,) [s] or None."""
     frame_of = points[:, 0].long()
     for index, pred_dict in enumerate(pred_dicts):
         boxes = pred_dict["pred_boxes"]
         if not len(boxes):
             continue
-        own = points[frame_of == index, 1:4].detach().cpu().double().numpy()
+        in_frame = frame_of == index
+        own = points[in_frame, 1:4].detach().cpu().double().numpy()
+        times = None if point_times is None else point_times[in_frame].detach().cpu().double().numpy()
         fitted, _ = fit_boxes_to_points(boxes.detach().cpu().double().numpy(), own, min_points, margin, min_height,
-                                        center_depth)
+                                        center_depth, times, min_drift_speed)
         pred_dict["pred_boxes"] = torch.as_tensor(fitted, dtype=boxes.dtype, device=boxes.device)

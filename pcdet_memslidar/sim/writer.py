@@ -44,11 +44,6 @@ FRAME_THREADS = 2  # frames made at a time by one process
 MAX_FRAMES = 10 ** 6  # frame ids have six digits
 
 
-def time_offset_path(layout: KittiLayout, frame_id: str) -> Path:
-    """training/time_offset/<id>.bin: float32 per-point time offsets [s] of a frame."""
-    return layout.training / "time_offset" / f"{frame_id}.bin"
-
-
 def frame_id(index: int) -> str:
     return f"{index:06d}"
 
@@ -84,8 +79,8 @@ def write_simulated_frame(layout: KittiLayout, index: int, frame: Frame, fingerp
     """Write frame `index`: its time offsets first, then the KITTI files (velodyne last)."""
     name = frame_id(index)
     metadata = dict(frame.metadata, fingerprint=fingerprint,
-                    time_offset_file=str(time_offset_path(layout, name).relative_to(layout.root)))
-    write_bytes(time_offset_path(layout, name), np.ascontiguousarray(frame.time_offset, dtype="<f4"))
+                    time_offset_file=str(layout.time_offset(name).relative_to(layout.root)))
+    write_bytes(layout.time_offset(name), np.ascontiguousarray(frame.time_offset, dtype="<f4"))
     write_frame(layout, name, frame.points, frame.names, frame.boxes, metadata)
 
 
@@ -135,7 +130,7 @@ def _complete_frames(layout: KittiLayout, frames: int, shard: tuple[int, int], f
         try:
             stored = json.loads(layout.metadata(name).read_text(encoding="utf-8")).get("fingerprint")
             points = layout.velodyne(name).stat().st_size
-            whole = (points % 16 == 0 and time_offset_path(layout, name).stat().st_size * 4 == points
+            whole = (points % 16 == 0 and layout.time_offset(name).stat().st_size * 4 == points
                      and layout.calib(name).is_file())
             read_label(layout.label(name))
         except (OSError, ValueError):  # missing or unreadable file, invalid JSON, malformed label

@@ -15,6 +15,7 @@ from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
+from pcdet_memslidar.utils.atomic import write_bytes
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
 
@@ -171,3 +172,28 @@ def test_a_class_name_in_another_case_is_an_error_not_background(tmp_path, make_
                                                         f"'Pedestrian' (class names are case-sensitive), so its "
                                                         f"objects would not count; rename it to Pedestrian")):
         MEMSLidarDataset(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False)
+
+
+def test_test_frames_carry_their_points_times_through_masking_and_batching(tmp_path, make_people_frame,
+                                                                          intensity_bands):
+    layout = KittiLayout(tmp_path / "industrial")
+    rng = np.random.default_rng(0)
+    for index in range(3):
+        points, boxes = make_people_frame(rng, 2, intensity_bands["industrial"])
+        points[0, 0] = 100.0  # outside POINT_CLOUD_RANGE: masked out
+        write_frame(layout, f"{index:06d}", points, ["Pedestrian"] * 2, boxes, {})
+        if index < 2:  # frame 2 keeps no times
+            write_bytes(layout.time_offset(f"{index:06d}"), points[:, 0].astype("<f4"))  # time = x, to check order
+    create_domain_infos(Source("industrial", layout.root, None))
+    cfg = _cfg("m3", tmp_path)
+    test = MEMSLidarDataset(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False)
+    samples = [test[index] for index in range(3)]
+    for sample in samples[:2]:
+        assert sample["point_times"].tolist() == sample["points"][:, 0].tolist()  # the points' own, in range
+    assert "point_times" not in samples[2]
+    batch = test.collate_batch(samples[:2])
+    assert batch["point_times"].tolist() == batch["points"][:, 1].tolist()
+    assert "point_times" not in test.collate_batch(samples)  # not every frame has them: none
+    write_bytes(layout.time_offset("000001"), np.zeros(3, dtype="<f4"))
+    with pytest.raises(DataFormatError, match=re.escape(f"{layout.time_offset('000001')}: 3 time offsets for")):
+        test[1]

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from pcdet_memslidar.geometry.box_from_points import centre_behind, fit_boxes_to_points, main_axis
+from pcdet_memslidar.geometry.box_from_points import centre_behind, drift_velocity, fit_boxes_to_points, main_axis
 
 
 def _line(degrees, centre=(5.0, -2.0), count=21, half_length=0.3):
@@ -110,9 +110,45 @@ def test_a_box_with_too_few_points_keeps_its_centre():
     assert done.tolist() == [False] and fitted.tolist() == box.tolist()
 
 
-@pytest.mark.parametrize("min_points, margin, min_height, depth", [
-    (1, 0.1, 0.0, None), (5, -0.1, 0.0, None), (5, float("nan"), 0.0, None), (5, 0.1, -0.5, None),
-    (5, 0.1, float("inf"), None), (5, 0.1, 0.0, -0.08), (5, 0.1, 0.0, float("nan"))])
-def test_settings_out_of_range_are_refused(min_points, margin, min_height, depth):
-    with pytest.raises(ValueError, match="min_points >= 2 and a margin, min_height and center_depth >= 0 m"):
-        fit_boxes_to_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin, min_height, depth)
+@pytest.mark.parametrize("min_points, margin, min_height, depth, speed", [
+    (1, 0.1, 0.0, None, None), (5, -0.1, 0.0, None, None), (5, float("nan"), 0.0, None, None),
+    (5, 0.1, -0.5, None, None), (5, 0.1, float("inf"), None, None), (5, 0.1, 0.0, -0.08, None),
+    (5, 0.1, 0.0, float("nan"), None), (5, 0.1, 0.0, None, -0.5), (5, 0.1, 0.0, None, float("nan"))])
+def test_settings_out_of_range_are_refused(min_points, margin, min_height, depth, speed):
+    with pytest.raises(ValueError, match="min_points >= 2 and a margin, min_height, center_depth >= 0 m and "
+                                         "min_drift_speed >= 0 m/s"):
+        fit_boxes_to_points(np.zeros((0, 7)), np.zeros((0, 3)), min_points, margin, min_height, depth,
+                            min_drift_speed=speed)
+
+
+def test_drift_velocity_of_points_taken_over_time():
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    walking = np.stack([2.0 + 1.5 * times, -1.0 + 0.5 * times], axis=1)  # 1.5 m/s in x, 0.5 m/s in y
+    assert drift_velocity(walking, times) == pytest.approx([1.5, 0.5], abs=1e-12)
+    still = np.array([[2.0, 1.0], [2.1, 1.1], [2.1, 1.1], [2.0, 1.0]])  # a standing person: spread, no drift
+    assert drift_velocity(still, times) == pytest.approx([0.0, 0.0], abs=1e-12)
+    assert drift_velocity(walking, np.full(4, 0.2)) is None  # taken at one time: no drift shown
+    assert drift_velocity(walking[:1], times[:1]) is None
+
+
+def _walker():
+    """A person 8 m out, 0.5 m wide along x, swept over 0.3 s while it walks along y at 1 m/s: 16 points (x, y,
+    z) and their times [s]."""
+    times = np.repeat([0.0, 0.1, 0.2, 0.3], 4)
+    x = 8.0 + np.tile([-0.25, -0.1, 0.1, 0.25], 4)
+    return np.stack([x, 1.0 * times, np.full(16, 1.0)], axis=1), times
+
+
+def test_a_walking_persons_long_side_follows_the_drift_of_its_points():
+    points, times = _walker()
+    box = np.array([[8.0, 0.15, 0.9, 0.6, 0.6, 1.8, 0.3]])
+    by_axis, _ = fit_boxes_to_points(box, points, 5, 0.1)  # no times: the points' main axis, along x
+    assert by_axis[0, 6] == pytest.approx(0.0, abs=1e-12)
+    by_drift, done = fit_boxes_to_points(box, points, 5, 0.1, times=times, min_drift_speed=0.5)
+    assert done.tolist() == [True] and abs(np.cos(by_drift[0, 6])) < 1e-12  # along y, where it walks
+    slow, _ = fit_boxes_to_points(box, points, 5, 0.1, times=times, min_drift_speed=1.5)  # it drifts at 1 m/s
+    assert slow[0, 6] == pytest.approx(0.0, abs=1e-12)
+    off, _ = fit_boxes_to_points(box, points, 5, 0.1, times=times)  # no min_drift_speed: the drift is not used
+    assert off[0, 6] == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ValueError, match="15 time offsets for 16 points"):
+        fit_boxes_to_points(box, points, 5, 0.1, times=times[:15], min_drift_speed=0.5)

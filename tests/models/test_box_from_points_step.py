@@ -20,17 +20,22 @@ def test_both_heads_fit_boxes_to_points_unless_disabled(cfg_file):
     assert box_from_points(cfg.MODEL.POST_PROCESSING) is None  # the network's own heading
 
 
-GOOD = {"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "MIN_HEIGHT": 0.5, "CENTER_DEPTH": 0.08}
+GOOD = {"ENABLED": True, "MIN_POINTS": 5, "MARGIN": 0.1, "MIN_HEIGHT": 0.5, "CENTER_DEPTH": 0.08,
+        "MIN_DRIFT_SPEED": 0.5}
 
 
-def test_a_good_block_gives_its_four_settings():
-    assert box_from_points(EasyDict({"BOX_FROM_POINTS": GOOD})) == (5, 0.1, 0.5, 0.08)
-    assert box_from_points(EasyDict({"BOX_FROM_POINTS": {**GOOD, "CENTER_DEPTH": None}})) == (5, 0.1, 0.5, None)
+def test_a_good_block_gives_its_five_settings():
+    assert box_from_points(EasyDict({"BOX_FROM_POINTS": GOOD})) == (5, 0.1, 0.5, 0.08, 0.5)
+    assert box_from_points(EasyDict({"BOX_FROM_POINTS": {**GOOD, "CENTER_DEPTH": None, "MIN_DRIFT_SPEED": None}})) \
+        == (5, 0.1, 0.5, None, None)
 
 
 @pytest.mark.parametrize("change, message", [
     ({"MIN_HEIGHT": None}, r"BOX_FROM_POINTS is .*: write \{ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEI"),
-    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08}"),
+    ({"RADIUS": 1}, "write {ENABLED: True, MIN_POINTS: 5, MARGIN: 0.1, MIN_HEIGHT: 0.4, CENTER_DEPTH: 0.08, "
+                    "MIN_DRIFT_SPEED: 0.5}"),
+    ({"MIN_DRIFT_SPEED": -1}, r"MIN_DRIFT_SPEED is -1: use metres per second in \[0, 10\) or null"),
+    ({"MIN_DRIFT_SPEED": True}, r"MIN_DRIFT_SPEED is True: use metres per second in \[0, 10\) or null"),
     ({"CENTER_DEPTH": -0.1}, r"CENTER_DEPTH is -0.1: use metres in \[0, 10\) or null"),
     ({"CENTER_DEPTH": "0.1"}, r"CENTER_DEPTH is '0.1': use metres in \[0, 10\) or null"),
     ({"ENABLED": "yes"}, r"ENABLED is 'yes': use True or False"),
@@ -57,10 +62,25 @@ def test_each_frame_of_a_batch_fits_its_boxes_to_its_own_points():
     pred_dicts = [{"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.tensor([[4.0, 0.0, 0.8, 0.5, 0.6, 1.7, 1.0]])},
                   {"pred_boxes": torch.zeros((0, 7))}]
-    fit_to_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0, 0.0, None)
+    fit_to_points(pred_dicts, torch.tensor(frame_1, dtype=torch.float32), 5, 0.0, 0.0, None, None)
     assert pred_dicts[0]["pred_boxes"].tolist() == [[4.0, 0.0, 0.800000011920929, 0.5, 0.6000000238418579,
                                                      1.7000000476837158, 1.0]]  # frame 0 has no points: as it was
     assert pred_dicts[1]["pred_boxes"].dtype == torch.float32
     assert pred_dicts[1]["pred_boxes"][0, 3:5].tolist() == pytest.approx([0.6, 0.5])  # long side first
     assert pred_dicts[1]["pred_boxes"][0, 6].item() == pytest.approx(np.pi / 4, abs=1e-6)
     assert pred_dicts[2]["pred_boxes"].shape == (0, 7)
+
+
+def test_the_batch_point_times_of_each_frame_turn_its_box_along_the_drift():
+    times = np.repeat([0.0, 0.1, 0.2, 0.3], 4)
+    walker = np.column_stack([np.ones(16), 8.0 + np.tile([-0.25, -0.1, 0.1, 0.25], 4), 1.0 * times,
+                              np.full(16, 1.0)])  # frame 1: 0.5 m wide along x, walking along y at 1 m/s
+    box = [8.0, 0.15, 0.9, 0.6, 0.6, 1.8, 0.3]
+    pred_dicts = [{"pred_boxes": torch.tensor([box])}, {"pred_boxes": torch.tensor([box])}]
+    fit_to_points(pred_dicts, torch.tensor(walker, dtype=torch.float32), 5, 0.1, 0.0, None, 0.5,
+                  point_times=torch.tensor(times, dtype=torch.float32))
+    assert abs(np.cos(pred_dicts[1]["pred_boxes"][0, 6].item())) < 1e-6  # along y, where the points drift
+    assert pred_dicts[0]["pred_boxes"][0, 6].item() == pytest.approx(0.3)  # frame 0 has no points
+    without_times = [{"pred_boxes": torch.tensor([box])}, {"pred_boxes": torch.tensor([box])}]
+    fit_to_points(without_times, torch.tensor(walker, dtype=torch.float32), 5, 0.1, 0.0, None, 0.5)
+    assert without_times[1]["pred_boxes"][0, 6].item() == pytest.approx(0.0, abs=1e-6)  # the main axis, along x

@@ -196,7 +196,7 @@ def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cf
                           result_dir=tmp_path / "bf16")
     assert bf16["AP3D_R40"] >= 0.9, bf16
     model.set_precision("fp32")
-    model.box_from_points = (5, 0.1, 0.0, None)  # POST_PROCESSING.BOX_FROM_POINTS, applied by the template
+    model.box_from_points = (5, 0.1, 0.0, None, None)  # POST_PROCESSING.BOX_FROM_POINTS, applied by the template
     model.eval()
     with torch.no_grad():
         pred_dicts, _ = model(load_data_to_device(next(iter(one_by_one)), "cpu"))
