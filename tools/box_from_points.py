@@ -37,6 +37,11 @@ POINT_BINS = ((5, 20), (20, 50), (50, 100), (100, None))  # points per person, l
 SPREAD_BINS = ((0.0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 1.0))  # smaller / larger BEV variance, upper bound included
 
 
+def long_side_error(direction: float, box: np.ndarray) -> float:
+    """Angle [deg] in [0, 90] between a direction [rad] and the long side of a (7,) box."""
+    return float(orientation_error_deg(np.array([[*box[:3], 1.0, 0.5, box[5], direction]]), box[None])[0])
+
+
 def person_measurements(root: Path, frames: int | None, min_points: int, min_height: float = 0.0,
                         margin: float = 0.0) -> dict[str, np.ndarray]:
     """Every labelled person with at least min_points points in its window (its box grown by `margin` [m] in x and y,
@@ -63,8 +68,7 @@ def person_measurements(root: Path, frames: int | None, min_points: int, min_hei
             if len(own) < min_points:
                 continue
             axis = main_axis(own)
-            estimate = np.array([[*box[:3], 1.0, 0.5, box[5], axis if axis is not None else 0.0]])  # long side on it
-            found["error"].append(orientation_error_deg(estimate, box[None])[0] if axis is not None else np.nan)
+            found["error"].append(long_side_error(axis, box) if axis is not None else np.nan)
             found["count"].append(len(own))
             variances = np.linalg.eigvalsh(np.cov(own.T))
             found["spread"].append(variances[0] / variances[1])
@@ -77,9 +81,8 @@ def person_measurements(root: Path, frames: int | None, min_points: int, min_hei
                 found["speed"].append(np.nan)
                 found["drift_error"].append(np.nan)
             else:
-                along = np.array([[*box[:3], 1.0, 0.5, box[5], np.arctan2(velocity[1], velocity[0])]])  # long side
                 found["speed"].append(float(np.hypot(*velocity)))
-                found["drift_error"].append(orientation_error_deg(along, box[None])[0])
+                found["drift_error"].append(long_side_error(float(np.arctan2(velocity[1], velocity[0])), box))
     return {key: np.asarray(values, dtype=np.float64) for key, values in found.items()}
 
 
