@@ -7,5 +7,6 @@ __version__ = "0.2.0"
 # on a machine shared with other processes the spinning takes the core from the very thread it waits for, and a
 # training step ran 5-6x slower beside three busy processes instead of 2-3x (tools/benchmark_load.py). libgomp reads
 # this when it loads, so it applies when the package is imported before torch (the memslidar command, tools/, the
-# OpenPCDet launcher); a value the user sets wins.
-os.environ.setdefault("GOMP_SPINCOUNT", "10000")
+# OpenPCDet launcher). The user's choice wins: GOMP_SPINCOUNT, or OMP_WAIT_POLICY (which a GOMP_SPINCOUNT overrides).
+if "OMP_WAIT_POLICY" not in os.environ:
+    os.environ.setdefault("GOMP_SPINCOUNT", "10000")
