@@ -9,7 +9,7 @@ a rulebook and three dense steps:
   rows. For one offset the pairs are one-to-one (an output cell takes at most one input, an input reaches at most
   one output), so the adds of one offset never collide, forward or backward, and offsets are summed in one fixed
   order: the result does not depend on the thread count (torch's matrix products split rows and columns, not the
-  sum: tested), so a training's convs may run on fewer threads when other processes need the cores.
+  sum: tested), so a training's rulebooks and convs may run on fewer threads when other processes need the cores.
 Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
 (training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
 """
@@ -279,8 +279,8 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict,
     """Forward of a SparseSequential of sparse convs, BatchNorm1d and ReLU on the CPU (the tensor's cells distinct,
     as spconv requires), with rulebooks shared through `cache` by indice_key as spconv shares its indices. Without
     grad an eval-mode BatchNorm is folded into the conv before it; with grad the convs are differentiable
-    (SparseConvFunction) and run on `conv_threads` (default: torch's), forward and backward. numba runs on as many
-    threads as torch."""
+    (SparseConvFunction) and, like the rulebooks, run on `conv_threads` (default: torch's), forward and backward. numba
+    runs on as many threads as torch."""
     threads = torch.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))  # starts numba's OpenMP pool at the first
     torch.set_num_threads(threads)  # call, which sets OpenMP's thread count: torch's too (libgomp is shared)
@@ -293,7 +293,8 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict,
             key = layer.indice_key if layer.subm and layer.indice_key else id(layer)
             rules = cache.get(key)
             if rules is None or rules.coords is not coords and not np.array_equal(rules.coords, coords):
-                rules = cache[key] = Rulebook(coords, shape, layer)
+                with on_threads(conv_threads or threads):  # integer pairs: the same on any thread count
+                    rules = cache[key] = Rulebook(coords, shape, layer)
             if grad:
                 features = SparseConvFunction.apply(features, kernel_weight(layer), rules, conv_threads or threads)
                 features = features if layer.bias is None else features + layer.bias

@@ -19,7 +19,7 @@ from pcdet_memslidar.runtime.checkpoint import (
     save_checkpoint,
     unwrap,
 )
-from pcdet_memslidar.runtime.common import cpu_has_bf16
+from pcdet_memslidar.runtime.common import cpu_has_bf16, threads_giving_way
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
 from pcdet_memslidar.utils.progress import progress_bar
 
@@ -52,7 +52,8 @@ def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: 
                    scaler: torch.amp.GradScaler | None = None, phase_done=None) -> tuple[float, dict]:
     """One optimisation step on `batch` (an OpenPCDet batch_dict). Returns (loss, tb_dict). phase_done(name), if
     given, is called as each phase ends: 'to device', 'forward', 'backward', 'optimizer' (tools/benchmark_model.py
-    times them)."""
+    times them). On a CPU the optimizer's update takes only the cores no other process is using: it is elementwise,
+    so its results do not depend on the thread count (the forward and backward keep torch's threads: theirs do)."""
     phase_done = phase_done or (lambda name: None)
     model.train()
     load_data_to_device(batch, device)
@@ -73,6 +74,10 @@ def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: 
     if scaler is not None:
         scaler.step(optimizer)
         scaler.update()
+    elif torch.device(device).type == "cpu":
+        with threads_giving_way() as give_way:  # the update is elementwise: the same bits on any thread count
+            give_way()
+            optimizer.step()
     else:
         optimizer.step()
     lr_scheduler.step()

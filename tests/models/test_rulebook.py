@@ -1,6 +1,7 @@
 """models.rulebook on hand-made cells with exact expected values: a submanifold conv at a corner of the grid and
 across frames, its gradients, a stride-2 conv reaching 8 output cells, conv_out's (3, 1, 1) kernel, BatchNorm
 folding, and the layers it refuses; the backward against finite differences in float64."""
+import numpy as np
 import pytest
 import spconv.pytorch as spconv
 import torch
@@ -70,7 +71,7 @@ def test_backward_equals_finite_differences_in_float64(conv):
 
 
 def test_forward_and_backward_give_the_same_bits_on_one_and_two_threads():
-    """What lets a training's convs give way to other processes without changing its results."""
+    """What lets a training's rulebooks and convs give way to other processes without changing its results."""
     generator = torch.Generator().manual_seed(1)
     shape = [20, 60, 60]
     cells = torch.unique(torch.stack([torch.randint(0, s, (6000,), generator=generator) for s in shape], 1), dim=0)
@@ -80,7 +81,15 @@ def test_forward_and_backward_give_the_same_bits_on_one_and_two_threads():
     threads = torch.get_num_threads()
     for conv in (spconv.SubMConv3d(64, 64, 3, bias=False), spconv.SparseConv3d(64, 64, 3, stride=2, padding=1,
                                                                               bias=False)):
-        rules = rulebook.Rulebook(coords, shape, conv)
+        built = []
+        for count in (1, 2):
+            with rulebook.on_threads(count):
+                built.append(rulebook.Rulebook(coords, shape, conv))
+        assert np.array_equal(built[0].coords, built[1].coords)
+        assert [k for k, _, _ in built[0].pairs] == [k for k, _, _ in built[1].pairs]
+        assert all(torch.equal(a, b) for (_, *one), (_, *two) in zip(*(rules.pairs for rules in built))
+                   for a, b in zip(one, two))
+        rules = built[1]
         weight = torch.randn(rulebook.kernel_weight(conv).shape, generator=generator)
         upstream = torch.randn(len(rules.coords), 64, generator=generator)
         for count in (1, 2):
