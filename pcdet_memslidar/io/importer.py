@@ -59,7 +59,7 @@ def _bfpc_frames(src: Path) -> list[SourceFrame]:
             first_start_ns = frame.start_time_ns if first_start_ns is None else first_start_ns
             strongest = frame.first_returns()
             cloud = LoadedCloud(points=frame.points[strongest], time=frame.time_offset[frame.return_pulse[strongest]],
-                                dropped=int((~frame.returned).sum()), has_intensity=True)
+                                dropped=int((~frame.returned).sum()), has_intensity=True, time_unit_s=1.0)
             frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud,
                                       time_s=(frame.start_time_ns - first_start_ns) * 1e-9))
     return frames
@@ -149,7 +149,8 @@ def import_frames(frames: list[SourceFrame], out: Path, mount: Mount | None, mou
                         "has_intensity": cloud.has_intensity, "dropped_invalid_points": cloud.dropped}
             if cloud.time is not None:
                 metadata["point_time"] = np.round(cloud.time, 7)
-            write_frame(layout, frame_id, points, [cvat.CLASS_NAME] * len(boxes), boxes, metadata)
+            write_frame(layout, frame_id, points, [cvat.CLASS_NAME] * len(boxes), boxes, metadata,
+                        time_offset=cloud.time_offsets())
             report["per_frame"].append(entry)
         train, val = write_split(layout)
         report.update(_totals(report["per_frame"]), train_frames=len(train), val_frames=len(val))

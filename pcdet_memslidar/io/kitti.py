@@ -74,6 +74,11 @@ def read_points(path: str | Path) -> np.ndarray:
     return _check_points(path, np.frombuffer(data, dtype="<f4").reshape(-1, 4).copy())
 
 
+def write_point_times(path: str | Path, times: np.ndarray) -> None:
+    """(N,) time offsets [s] of a frame's points -> a training/time_offset .bin file (float32), atomically."""
+    write_bytes(Path(path), np.ascontiguousarray(times, dtype="<f4"))
+
+
 def read_point_times(path: str | Path, num_points: int) -> np.ndarray:
     """(num_points,) float32 time offsets [s] of a frame's points from a training/time_offset .bin file."""
     path = Path(path)

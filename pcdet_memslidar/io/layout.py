@@ -84,15 +84,21 @@ def _json_value(value):
 
 
 def write_frame(layout: KittiLayout, frame_id: str, points: np.ndarray, names, boxes: np.ndarray,
-                metadata: dict, calib: Calibration | None = None) -> None:
+                metadata: dict, calib: Calibration | None = None, time_offset: np.ndarray | None = None) -> None:
     """Write one frame: (N, 4) points [x, y, z, intensity], (M,) names and (M, 7) LiDAR boxes [x, y, z_center,
-    dx, dy, dz, heading], a JSON-serialisable metadata dict and the calib (default: the virtual camera).
+    dx, dy, dz, heading], a JSON-serialisable metadata dict, the calib (default: the virtual camera) and, if given,
+    the (N,) time offsets [s] of the points (training/time_offset, named in the metadata's time_offset_file).
 
     Each file is written atomically and the velodyne file last, so an interrupted write never shows up as a frame
     in frame_ids().
     """
     frame_id = _check_frame_id(frame_id)
     calib = calib or Calibration.virtual()
+    if time_offset is not None:
+        if len(time_offset) != len(points):
+            raise ValueError(f"frame {frame_id}: {len(time_offset)} time offsets for {len(points)} points")
+        metadata = dict(metadata, time_offset_file=str(layout.time_offset(frame_id).relative_to(layout.root)))
+        kitti.write_point_times(layout.time_offset(frame_id), time_offset)
     # one line: json's C encoder (an indent falls back to its pure-Python encoder, 5x slower)
     metadata_text = json.dumps(metadata, sort_keys=True, default=_json_value, allow_nan=False) + "\n"
     write_text(layout.metadata(frame_id), metadata_text)

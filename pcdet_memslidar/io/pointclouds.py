@@ -34,6 +34,15 @@ class LoadedCloud:
     time: np.ndarray | None  # (N,) float64 per-point time in the file's unit, or None
     dropped: int  # points removed because x, y, z were NaN / infinite or all zero
     has_intensity: bool
+    time_unit_s: float | None = None  # seconds per unit of `time` where the format says it (.bfpc: 1), else None
+
+    def time_offsets(self) -> np.ndarray | None:
+        """(N,) float32 time of each point [s] from the frame's earliest point, where the unit is known, else None."""
+        if self.time is None or self.time_unit_s is None:
+            return None
+        if len(self.time) == 0:
+            return np.zeros(0, np.float32)
+        return ((self.time - self.time.min()) * self.time_unit_s).astype(np.float32)
 
 
 def read_point_cloud(path: str | Path) -> LoadedCloud:

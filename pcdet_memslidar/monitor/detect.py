@@ -99,8 +99,10 @@ class FrameVoxeliser(DatasetTemplate):
     def __init__(self, cfg, logger: logging.Logger):
         super().__init__(cfg.DATA_CONFIG, cfg.CLASS_NAMES, training=False, root_path=Path("."), logger=logger)
 
-    def __call__(self, points: np.ndarray, frame_id: str) -> dict:
-        return self.prepare_data({"points": points, "frame_id": frame_id})
+    def __call__(self, points: np.ndarray, frame_id: str, point_times: np.ndarray | None = None) -> dict:
+        """points (N, 4), and their time offsets (N,) [s] where the recording has them (the box step's drift)."""
+        frame = {"points": points, "frame_id": frame_id}
+        return self.prepare_data(frame if point_times is None else {**frame, "point_times": point_times})
 
 
 class Monitor:
@@ -151,10 +153,10 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
         bar = progress_bar(total=len(frames), desc="detect", unit="frame")
         for first in range(0, len(frames), batch_size):
             batch = frames[first:first + batch_size]
-            clouds = _read(batch, mount, seconds, counts)  # 1. read and normalise
+            clouds, times = _read(batch, mount, seconds, counts)  # 1. read and normalise
             if torch.device(device).type == "cpu":
                 give_way()
-            predictions = _infer(model, voxeliser, clouds, first, device, seconds, counts)  # 2. voxelise, infer
+            predictions = _infer(model, voxeliser, clouds, times, first, device, seconds, counts)  # 2. voxelise, infer
             for index, frame, points, (boxes, scores) in zip(range(first, first + len(batch)), batch, clouds,
                                                              predictions):
                 tick = time.perf_counter()  # 3. track, zones and events, in time order
@@ -177,6 +179,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
         summary = {"source": str(src), "format": fmt, "checkpoint": str(checkpoint),
                    "config": cfg.get("CFG_FILE"), "profile": cfg.get("PROFILE"), "mount": mount_entry,
                    "frames": len(frames), "frames_without_points": counts["empty"],
+                   "frames_with_point_times": counts["timed"],
                    "frames_without_voxels": counts["no_voxels"], "dropped_invalid_points": counts["dropped"],
                    "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
                    "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
@@ -212,23 +215,29 @@ def _lap(seconds: Counter, stage: str, tick: float) -> float:
     return now
 
 
-def _read(batch: list[SourceFrame], mount: Mount | None, seconds: Counter, counts: Counter) -> list[np.ndarray]:
-    """The batch's clouds (N, 4) in the ground frame; invalid points are counted (the readers drop them)."""
-    tick, clouds = time.perf_counter(), []
+def _read(batch: list[SourceFrame], mount: Mount | None, seconds: Counter, counts: Counter
+          ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
+    """The batch's clouds (N, 4) in the ground frame, and their points' time offsets (N,) [s] where the format gives
+    their unit (else None); invalid points are counted (the readers drop them)."""
+    tick, clouds, times = time.perf_counter(), [], []
     for frame in batch:
         cloud = frame.load()
         counts["dropped"] += cloud.dropped
         counts["empty"] += len(cloud.points) == 0
         clouds.append(cloud.points if mount is None else ground.normalise_points(cloud.points, mount))
+        times.append(cloud.time_offsets())
+        counts["timed"] += times[-1] is not None
     _lap(seconds, "read", tick)
-    return clouds
+    return clouds, times
 
 
-def _infer(model, voxeliser: FrameVoxeliser, clouds: list[np.ndarray], first: int, device, seconds: Counter,
-           counts: Counter) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(boxes (M, 7), scores (M,)) per cloud; a frame with no voxel in range gets none (counted)."""
+def _infer(model, voxeliser: FrameVoxeliser, clouds: list[np.ndarray], times: list[np.ndarray | None], first: int,
+           device, seconds: Counter, counts: Counter) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(boxes (M, 7), scores (M,)) per cloud (with its points' time offsets or None); a frame with no voxel in range
+    gets none (counted)."""
     tick = time.perf_counter()
-    samples = [voxeliser(points, f"{first + k:06d}") for k, points in enumerate(clouds)]
+    samples = [voxeliser(points, f"{first + k:06d}", point_times)
+               for k, (points, point_times) in enumerate(zip(clouds, times))]
     filled = [k for k, sample in enumerate(samples) if len(sample["voxels"])]
     counts["no_voxels"] += len(samples) - len(filled)
     tick = _lap(seconds, "voxelise", tick)

@@ -21,8 +21,6 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
-import numpy as np
-
 import pcdet_memslidar
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.io.kitti import read_label
@@ -34,7 +32,7 @@ from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.sim.site import Site
-from pcdet_memslidar.utils.atomic import atomic_dir, write_bytes, write_text
+from pcdet_memslidar.utils.atomic import atomic_dir, write_text
 from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
 from pcdet_memslidar.utils.progress import progress_bar
 
@@ -77,11 +75,8 @@ def parse_shard(text: str) -> tuple[int, int]:
 
 def write_simulated_frame(layout: KittiLayout, index: int, frame: Frame, fingerprint: str) -> None:
     """Write frame `index`: its time offsets first, then the KITTI files (velodyne last)."""
-    name = frame_id(index)
-    metadata = dict(frame.metadata, fingerprint=fingerprint,
-                    time_offset_file=str(layout.time_offset(name).relative_to(layout.root)))
-    write_bytes(layout.time_offset(name), np.ascontiguousarray(frame.time_offset, dtype="<f4"))
-    write_frame(layout, name, frame.points, frame.names, frame.boxes, metadata)
+    write_frame(layout, frame_id(index), frame.points, frame.names, frame.boxes,
+                dict(frame.metadata, fingerprint=fingerprint), time_offset=frame.time_offset)
 
 
 def make_frame(site: Site, seed: int, index: int, threads: int = 0) -> Frame:

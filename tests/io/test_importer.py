@@ -14,6 +14,7 @@ from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.importer import import_dataset
+from pcdet_memslidar.io.kitti import read_point_times
 from pcdet_memslidar.io.layout import KittiLayout, read_frame
 
 PULSES_PER_FRAME = 12_312
@@ -39,6 +40,11 @@ def test_real_recording_imports_with_a_given_mount(tmp_path, real_recording, rec
     np.testing.assert_array_equal(frame["points"][:, 3], recording.frames[3].points[:, 3])
     assert len(frame["metadata"]["point_time"]) == len(frame["points"]) and frame["metadata"]["source"].endswith("#3")
     assert 0.0 <= min(frame["metadata"]["point_time"]) and max(frame["metadata"]["point_time"]) < 0.125
+    # the times in seconds from the frame's first point, as simulated frames keep them (the box step's drift)
+    assert frame["metadata"]["time_offset_file"] == "training/time_offset/000003.bin"
+    times = read_point_times(KittiLayout(tmp_path / "real").time_offset("000003"), len(frame["points"]))
+    pulse_times = recording.frames[3].time_offset[recording.frames[3].return_pulse[recording.frames[3].first_returns()]]
+    np.testing.assert_array_equal(times, (pulse_times - pulse_times.min()).astype(np.float32))
 
 
 def test_cli_estimates_the_ground_and_refuses_to_overwrite(tmp_path, scan_room, capsys):

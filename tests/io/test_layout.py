@@ -40,6 +40,18 @@ def test_frame_round_trip(tmp_path):
     assert layout.image_set("val") == tmp_path / "sim" / "ImageSets" / "val.txt"
 
 
+def test_time_offsets_are_written_beside_the_points_and_named_in_the_metadata(tmp_path):
+    layout = KittiLayout(tmp_path)
+    points, boxes = _frame(np.random.default_rng(2))
+    times = np.linspace(0.0, 0.4, len(points), dtype=np.float32)
+    write_frame(layout, "000002", points, ["Pedestrian"] * 3, boxes, {}, time_offset=times)
+    assert read_frame(layout, "000002")["metadata"] == {"time_offset_file": "training/time_offset/000002.bin"}
+    np.testing.assert_array_equal(kitti.read_point_times(layout.time_offset("000002"), len(points)), times)
+    with pytest.raises(ValueError, match="frame 000003: 1 time offsets for 3 points"):
+        write_frame(layout, "000003", points[:3], [], np.zeros((0, 7)), {}, time_offset=times[:1])
+    assert layout.frame_ids() == ["000002"]
+
+
 def test_frame_errors(tmp_path):
     layout = KittiLayout(tmp_path)
     points, boxes = _frame(np.random.default_rng(1))

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.pointclouds import read_point_cloud
+from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
 from pcdet_memslidar.utils.open3d import import_open3d
 
 
@@ -169,3 +169,20 @@ def test_a_gzip_recording_named_bin_is_named_as_such(tmp_path):
     (tmp_path / "r.bin").write_bytes(b"\x1f\x8b" + bytes(30))
     with pytest.raises(DataFormatError, match=r"r\.bin: a gzip stream, not float32 points: a Blickfeld recording"):
         read_point_cloud(tmp_path / "r.bin")
+
+
+@pytest.mark.parametrize("time, unit, expected", [
+    ([5.0, 5.25, 5.125], 1.0, [0.0, 0.25, 0.125]),  # seconds (a .bfpc)
+    ([2e9, 2.25e9, 2.125e9], 1e-9, [0.0, 0.25, 0.125]),  # nanoseconds
+    ([], 1.0, []),
+    ([5.0, 5.25, 5.125], None, None),  # a time field of unknown unit
+    (None, 1.0, None),
+])
+def test_time_offsets_are_seconds_from_the_first_point_where_the_unit_is_known(time, unit, expected):
+    points = np.zeros((0 if time is None else len(time), 4), np.float32)
+    cloud = LoadedCloud(points, None if time is None else np.array(time), 0, False, time_unit_s=unit)
+    offsets = cloud.time_offsets()
+    if expected is None:
+        assert offsets is None
+    else:
+        assert offsets.dtype == np.float32 and offsets.tolist() == expected

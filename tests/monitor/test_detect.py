@@ -67,6 +67,7 @@ def test_detect_on_the_real_recording_keeps_detections_not_points(tmp_path, bund
             assert set(detection) == {"box", "score", "track_id", "zones"} and len(detection["box"]) == 7
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["frames"], summary["format"], summary["points_written"]) == (10, "bfpc", False)
+    assert summary["frames_with_point_times"] == 10  # a .bfpc gives its times in seconds: the box step's drift
     assert summary["precision"] == "fp32"  # the default
     assert summary["mount"]["source"] == "estimated from the ground plane"
     assert summary["detections"] == sum(len(r["detections"]) for r in records)
@@ -86,10 +87,21 @@ def test_demo_flags_and_saved_points(tmp_path, frames_folder, smoke_checkpoint, 
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["frames"], summary["frames_without_points"], summary["dropped_invalid_points"]) == (3, 1, 5)
     assert summary["format"] == "npy" and summary["points_written"] is True and summary["precision"] == "bf16"
+    assert summary["frames_with_point_times"] == 0  # no time field
     saved = np.fromfile(out / "points" / "000000.bin", dtype=np.float32).reshape(-1, 4)
     np.testing.assert_array_equal(saved, np.load(frames_folder / "000.npy"))  # no mount: stored as read
     assert (out / "points" / "000001.bin").stat().st_size == 0
     assert sorted(p.name for p in (out / "plots").iterdir()) == ["000000.png", "000001.png", "000002.png"]
+
+
+def test_the_voxeliser_keeps_each_points_time_through_the_range_mask():
+    voxeliser = FrameVoxeliser(load_config(REPO_CFG, profile="smoke"), logging.getLogger("test"))
+    x = np.linspace(-100.0, 100.0, 401, dtype=np.float32)  # most of them out of range
+    points = np.stack([x, np.zeros_like(x), np.ones_like(x), np.zeros_like(x)], axis=1)
+    sample = voxeliser(points, "000000", point_times=x.copy())  # a point's time = its x, to check the order
+    assert 0 < len(sample["points"]) < len(points)
+    np.testing.assert_array_equal(sample["point_times"], sample["points"][:, 0])
+    assert "point_times" not in voxeliser(points, "000001")
 
 
 def test_a_checkpoint_of_another_grid_is_refused_and_nothing_is_written(tmp_path, frames_folder):
