@@ -29,7 +29,7 @@ from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
 from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
-from pcdet_memslidar.io.pointclouds import SUFFIXES
+from pcdet_memslidar.io.pointclouds import SUFFIXES, LoadedCloud, cloud_from_fields, read_bin_fields
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.plots import plot_tracks_frame
@@ -89,8 +89,21 @@ def recording_frames(src: Path, fmt: str) -> list[SourceFrame]:
     """The frames of `src` in format `fmt` (FORMATS but 'auto': see resolve_format) in recording order."""
     if fmt == "kitti":
         velodyne = src / "training" / "velodyne" if (src / "training").is_dir() else src / "velodyne"
-        return list_frames("bin", velodyne)
+        return [SourceFrame(frame.name, lambda path=velodyne / frame.name: _read_kitti_frame(path))
+                for frame in list_frames("bin", velodyne)]
     return list_frames(fmt, src)
+
+
+def _read_kitti_frame(velodyne: Path) -> LoadedCloud:
+    """A KITTI-layout frame, with its points' time offsets [s] where the folder has them (../time_offset/, as
+    `memslidar simulate` and `import` write), dropped with the invalid points they belong to."""
+    fields = read_bin_fields(velodyne)
+    times = velodyne.parent.parent / "time_offset" / velodyne.name
+    if not times.is_file():
+        return cloud_from_fields(fields, velodyne)
+    cloud = cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, velodyne)
+    cloud.time_unit_s = 1.0
+    return cloud
 
 
 class FrameVoxeliser(DatasetTemplate):

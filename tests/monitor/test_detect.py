@@ -11,8 +11,9 @@ import pytest
 from pcdet_memslidar import cli
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.models import build_network
-from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect
+from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect, recording_frames
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 
 REPO_CFG = "cfgs/m3.yaml"
@@ -102,6 +103,17 @@ def test_the_voxeliser_keeps_each_points_time_through_the_range_mask():
     assert 0 < len(sample["points"]) < len(points)
     np.testing.assert_array_equal(sample["point_times"], sample["points"][:, 0])
     assert "point_times" not in voxeliser(points, "000001")
+
+
+def test_a_kitti_folder_gives_its_time_offsets_with_its_valid_points(tmp_path):
+    layout = KittiLayout(tmp_path / "sim")
+    points = np.array([[5, 0, 1, 0], [6, 0, 1, 0], [0, 0, 0, 0], [7, 0, 1, 0]], np.float32)
+    times = np.array([0.1, 0.2, 0.3, 0.35], np.float32)  # the all-zero point is dropped on reading, with its time
+    write_frame(layout, "000000", points, [], np.zeros((0, 7)), {}, time_offset=times)
+    write_frame(layout, "000001", points[:2], [], np.zeros((0, 7)), {})  # no time offsets
+    timed, untimed = (frame.load() for frame in recording_frames(tmp_path / "sim", "kitti"))
+    assert timed.dropped == 1 and timed.time_offsets().tolist() == pytest.approx([0.0, 0.1, 0.25])
+    assert untimed.time_offsets() is None and len(untimed.points) == 2
 
 
 def test_a_checkpoint_of_another_grid_is_refused_and_nothing_is_written(tmp_path, frames_folder):
