@@ -17,7 +17,7 @@ import json
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -102,8 +102,7 @@ def _read_kitti_frame(velodyne: Path) -> LoadedCloud:
     if not times.is_file():
         return cloud_from_fields(fields, velodyne)
     cloud = cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, velodyne)
-    cloud.time_unit_s = 1.0
-    return cloud
+    return replace(cloud, time_unit_s=1.0)
 
 
 class FrameVoxeliser(DatasetTemplate):
