@@ -117,13 +117,13 @@ def box_from_points(post_process_cfg) -> tuple[int, float, float, float | None, 
         raise ConfigError(f"{where}.ENABLED is {enabled!r}: use True or False")
     if isinstance(min_points, bool) or not isinstance(min_points, int) or min_points < 2:
         raise ConfigError(f"{where}.MIN_POINTS is {min_points!r}: use an integer >= 2")
-    for key, value, fix in (("MARGIN", margin, ""), ("MIN_HEIGHT", min_height, ""),
-                            ("CENTER_DEPTH", 0.0 if center_depth is None else center_depth, " or null")):
+    for key, value, unit, nullable in (("MARGIN", margin, "metres", False), ("MIN_HEIGHT", min_height, "metres", False),
+                                       ("CENTER_DEPTH", center_depth, "metres", True),
+                                       ("MIN_DRIFT_SPEED", min_drift_speed, "metres per second", True)):
+        if value is None and nullable:
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 10:
-            raise ConfigError(f"{where}.{key} is {value!r}: use metres in [0, 10){fix}")
-    speed = 0.0 if min_drift_speed is None else min_drift_speed
-    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not 0 <= speed < 10:
-        raise ConfigError(f"{where}.MIN_DRIFT_SPEED is {min_drift_speed!r}: use metres per second in [0, 10) or null")
+            raise ConfigError(f"{where}.{key} is {value!r}: use {unit} in [0, 10){' or null' if nullable else ''}")
     if not enabled:
         return None
     return (min_points, float(margin), float(min_height), None if center_depth is None else float(center_depth),

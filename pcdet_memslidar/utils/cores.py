@@ -38,4 +38,6 @@ def runnable_elsewhere(samples: int = 5) -> int:
 
 def free_threads(limit: int) -> int:
     """Threads that leave the other processes' runnable threads a core each: between 1 and `limit`."""
+    if limit <= 1:  # nothing to give: one-thread runs (each training of `memslidar reproduce`) skip reading /proc
+        return 1
     return max(1, min(limit, available_cores() - runnable_elsewhere()))

@@ -26,6 +26,11 @@ def test_runnable_elsewhere_is_a_count_and_zero_without_proc(monkeypatch):
     assert cores.runnable_elsewhere() == 0
 
 
+def test_one_thread_has_nothing_to_give_and_reads_no_load(monkeypatch):
+    monkeypatch.setattr(cores, "runnable_elsewhere", lambda: pytest.fail("read the load for a one-thread run"))
+    assert cores.free_threads(1) == 1
+
+
 @pytest.mark.parametrize("elsewhere, expected", [(0, 2), (1, 1), (3, 1)])
 def test_inference_threads_give_way_to_other_processes_and_come_back(monkeypatch, elsewhere, expected):
     monkeypatch.setattr(cores, "available_cores", lambda: 2)
