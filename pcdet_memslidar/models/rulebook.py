@@ -8,8 +8,11 @@ a rulebook and three dense steps:
 - per offset: gather the input rows, multiply by that offset's weight (a torch matrix product), add into the output
   rows. For one offset the pairs are one-to-one (an output cell takes at most one input, an input reaches at most
   one output), so the adds of one offset never collide, forward or backward, and offsets are summed in one fixed
-  order: the result does not depend on the thread count (torch's matrix products split rows and columns, not the
-  sum: tested), so a training's rulebooks and convs may run on fewer threads when other processes need the cores.
+  order. The products that feed the output and the input gradient sum over 64 channels or fewer, which BLAS does
+  not split between threads; the weight gradient sums over all pairs of an offset, which it does split on some CPUs
+  (MKL on Intel Xeon), so that product runs on one thread. Hence the result does not depend on the thread count
+  (tested to the bit), and a training's rulebooks and convs may run on fewer threads when other processes need the
+  cores.
 Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
 (training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
 """
@@ -221,9 +224,9 @@ def on_threads(threads: int) -> Iterator[None]:
 
 
 class SparseConvFunction(torch.autograd.Function):
-    """convolve() without bias, with its backward, both on `threads` threads: for each offset k, grad_weight[k] =
-    inputs' features^T @ grad_out[outputs] and grad_features[inputs] += grad_out[outputs] @ weight[k]^T
-    (collision-free, see above)."""
+    """convolve() without bias, with its backward, both on `threads` threads: for each offset k, grad_features[inputs]
+    += grad_out[outputs] @ weight[k]^T (collision-free, see above) and, on one thread (its sum over pairs must not be
+    split), grad_weight[k] = inputs' features^T @ grad_out[outputs]."""
 
     @staticmethod
     def forward(ctx, features: torch.Tensor, weight: torch.Tensor, rules: Rulebook, threads: int) -> torch.Tensor:
@@ -239,13 +242,16 @@ class SparseConvFunction(torch.autograd.Function):
         grad_out = grad_out.contiguous()
         grad_features = torch.zeros_like(features) if ctx.needs_input_grad[0] else None
         grad_weight = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
-        with on_threads(ctx.threads):
-            for k, inputs, outputs in ctx.rules.pairs:
-                grad_rows = grad_out.index_select(0, outputs)
-                if grad_weight is not None:
-                    torch.mm(features.index_select(0, inputs).t(), grad_rows, out=grad_weight[k])
-                if grad_features is not None:
-                    _scatter_add(grad_features.numpy(), inputs.numpy(), (grad_rows @ weight[k].t()).numpy())
+        if grad_features is not None:
+            with on_threads(ctx.threads):
+                for k, inputs, outputs in ctx.rules.pairs:
+                    rows = grad_out.index_select(0, outputs) @ weight[k].t()
+                    _scatter_add(grad_features.numpy(), inputs.numpy(), rows.numpy())
+        if grad_weight is not None:
+            with on_threads(1):
+                for k, inputs, outputs in ctx.rules.pairs:
+                    torch.mm(features.index_select(0, inputs).t(), grad_out.index_select(0, outputs),
+                             out=grad_weight[k])
         return grad_features, grad_weight, None, None
 
 
