@@ -8,7 +8,7 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.commands.options import add_mount_arguments, add_precision, add_profile, add_set
+from pcdet_memslidar.commands.options import add_mount_arguments, add_precision, add_profile, add_set, add_time_unit
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.monitor.detect import FORMATS, FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect
@@ -26,6 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"one of {', '.join(FORMATS)} (default auto: a KITTI layout, or the files' suffix); "
                              "--ext .bin as in OpenPCDet's demo.py")
     add_mount_arguments(parser)
+    add_time_unit(parser)
     parser.add_argument("--zones", type=Path, default=None, help="zone file (YAML): named polygons with a level")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default output/detect/<src name>)")
     parser.add_argument("--batch-size", "--batch_size", type=int, default=None,
@@ -52,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
                             estimate_ground=args.estimate_ground,
                             zones=read_zones(args.zones) if args.zones else None, batch_size=args.batch_size,
                             frame_period_s=args.frame_period, save_points=args.save_points, plot=args.plot,
-                            precision=args.precision)
+                            precision=args.precision, time_unit_s=args.time_unit_s)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     summary = detect(cfg, args.ckpt, options, create_logger(), device)
     print(f"{summary['frames']} frames: {summary['detections']} detections, {summary['tracks']} tracks, "

@@ -1,4 +1,5 @@
-"""Options that several commands take, added the same way everywhere (--profile, --set, --workers, --mount),
+"""Options that several commands take, added the same way everywhere (--profile, --set, --workers, --mount,
+--time-unit),
 OpenPCDet's flags of `memslidar train` and `memslidar test`, and the experiment set-up those flags ask for."""
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from pathlib import Path
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground
+from pcdet_memslidar.io.pointclouds import TIME_UNITS
 from pcdet_memslidar.runtime.common import default_workers
 from pcdet_memslidar.runtime.experiment import Process, option_count, output_folder, start_process
 
@@ -58,6 +60,20 @@ def add_mount_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--mount", type=_mount, metavar="H,TILT[,ROLL]",
                        help="sensor height [m] and tilt [deg] (> 0 looks down) to remove")
     where.add_argument("--estimate-ground", action="store_true", help="estimate the mount from the ground plane")
+
+
+def add_time_unit(parser: argparse.ArgumentParser) -> None:
+    """--time-unit: the unit of PCD, PLY and NPY clouds' per-point time field (args.time_unit_s: seconds per unit or
+    None)."""
+    parser.add_argument("--time-unit", dest="time_unit_s", type=_time_unit, default=None, metavar="{s,ms,us,ns}",
+                        help="unit of the per-point time field of PCD, PLY and NPY clouds, which those formats do not "
+                             "record (default: their times are not used; .bfpc and KITTI-layout times are)")
+
+
+def _time_unit(text: str) -> float:
+    if text not in TIME_UNITS:
+        raise argparse.ArgumentTypeError(f"unknown time unit {text!r}: use one of {', '.join(TIME_UNITS)}")
+    return TIME_UNITS[text]
 
 
 def add_experiment_arguments(parser: argparse.ArgumentParser, runs: str) -> None:

@@ -33,6 +33,8 @@ from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse
 from pcdet_memslidar.utils.progress import progress_bar
 
 FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
+UNTIMED_FORMATS = ("bin",)  # formats without a per-point time field
+SELF_TIMED_FORMATS = ("bfpc", "kitti")  # formats that record their time unit (KITTI layout: training/time_offset [s])
 GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
 REPORT_NAME = "import_report.json"
 COMMAND = "memslidar import"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
@@ -77,15 +79,27 @@ def _files(src: Path, suffix: str) -> list[Path]:
     return files
 
 
-def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention: str = "cvat") -> list[SourceFrame]:
-    """The source frames of `src` in format `fmt` (for CVAT formats, `export_root` is the unpacked export)."""
+def check_time_unit(fmt: str, time_unit_s: float | None) -> None:
+    """ConfigError where a time unit is given (--time-unit) for a format that has no time field or records its
+    own unit."""
+    if time_unit_s is not None and fmt in UNTIMED_FORMATS + SELF_TIMED_FORMATS:
+        why = "has no per-point time" if fmt in UNTIMED_FORMATS else "records the unit of its point times"
+        raise ConfigError(f"--time-unit is for PCD, PLY and NPY clouds: format {fmt} {why}; drop --time-unit")
+
+
+def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention: str = "cvat",
+                time_unit_s: float | None = None) -> list[SourceFrame]:
+    """The source frames of `src` in format `fmt` (for CVAT formats, `export_root` is the unpacked export);
+    time_unit_s: seconds per unit of the clouds' time field, for formats that do not record it."""
+    check_time_unit(fmt, time_unit_s)
     if fmt == "bfpc":
         return _bfpc_frames(src)
     if fmt in ("pcd", "ply", "npy", "bin"):
-        return [SourceFrame(path.name, lambda path=path: read_point_cloud(path)) for path in _files(src, "." + fmt)]
+        return [SourceFrame(path.name, lambda path=path: read_point_cloud(path, time_unit_s))
+                for path in _files(src, "." + fmt)]
     exported = (cvat.read_sly_export(export_root) if fmt == "cvat-sly"
                 else cvat.read_kitti_raw_export(export_root, convention))
-    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path), frame)
+    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path, time_unit_s), frame)
             for frame in exported]
 
 
@@ -170,9 +184,10 @@ def _totals(per_frame: list[dict]) -> dict:
 
 def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
                    estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
-                   point_cloud_range=None, overwrite: bool = True) -> dict:
+                   point_cloud_range=None, overwrite: bool = True, time_unit_s: float | None = None) -> dict:
     """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report.
-    point_cloud_range: the range of the report's out-of-range count (default: detector_range()).
+    point_cloud_range: the range of the report's out-of-range count (default: detector_range()). time_unit_s:
+    seconds per unit of PCD / PLY / NPY time fields (their time offsets are written only with it).
     `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not be or contain `src`:
     OutputError otherwise."""
     if fmt not in FORMATS:
@@ -187,9 +202,9 @@ def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | No
                           "folder")
     if fmt.startswith("cvat"):
         with cvat.open_export(src) as root:
-            frames = list_frames(fmt, src, root, convention)
+            frames = list_frames(fmt, src, root, convention, time_unit_s)
             mount, entry = choose_mount(frames, mount, estimate_ground)
             return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)
-    frames = list_frames(fmt, src)
+    frames = list_frames(fmt, src, time_unit_s=time_unit_s)
     mount, entry = choose_mount(frames, mount, estimate_ground)
     return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)

@@ -21,6 +21,10 @@ SUFFIXES = (".pcd", ".ply", ".npy", ".bin")
 # field names that other tools use for intensity and per-point time, in order of preference
 INTENSITY_FIELDS = ("intensity", "reflectivity", "i", "scalar_intensity", "remission")
 TIME_FIELDS = ("time", "time_offset", "timestamp", "t", "offset_time")
+# seconds per unit of a time field, for the formats whose files do not say it (`--time-unit`)
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+# A frame's points are taken within one scan [s]: a wider spread of their times means the unit given is too large.
+MAX_FRAME_SPAN_S = 10.0
 # No LiDAR return lies this far [m]: a coordinate beyond it is a damaged file (a PCD binary_compressed body has no
 # checksum, so a flipped byte in it decodes to a wrong value) or one not in metres.
 MAX_COORDINATE_M = 1000.0
@@ -45,19 +49,22 @@ class LoadedCloud:
         return ((self.time - self.time.min()) * self.time_unit_s).astype(np.float32)
 
 
-def read_point_cloud(path: str | Path) -> LoadedCloud:
-    """Read a .pcd, .ply, .npy or .bin (KITTI float32 x, y, z, intensity) file."""
+def read_point_cloud(path: str | Path, time_unit_s: float | None = None) -> LoadedCloud:
+    """Read a .pcd, .ply, .npy or .bin (KITTI float32 x, y, z, intensity) file; time_unit_s: seconds per unit of
+    its time field, which these formats do not record (None: the times have no unit, so no time offsets)."""
     path = Path(path)
     readers = {".pcd": read_pcd_fields, ".ply": read_ply_fields, ".npy": read_npy_fields, ".bin": read_bin_fields}
     if path.suffix.lower() not in readers:
         raise DataFormatError(path, f"unknown point-cloud suffix {path.suffix!r}; use one of {', '.join(SUFFIXES)}")
     if not path.is_file():
         raise DataFormatError(path, "file not found")
-    return cloud_from_fields(readers[path.suffix.lower()](path), path)
+    return cloud_from_fields(readers[path.suffix.lower()](path), path, time_unit_s)
 
 
-def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path) -> LoadedCloud:
-    """Pick x, y, z, intensity and time from named (N,) columns and drop invalid points (counted)."""
+def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path, time_unit_s: float | None = None
+                      ) -> LoadedCloud:
+    """Pick x, y, z, intensity and time from named (N,) columns and drop invalid points (counted). time_unit_s:
+    seconds per unit of the time column; given, the file must have one, spread over at most MAX_FRAME_SPAN_S."""
     names = {name.lower(): name for name in fields}
     missing = [axis for axis in "xyz" if axis not in names]
     if missing:
@@ -81,7 +88,23 @@ def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path) -> Loaded
                                     "not in metres (convert it)")
     points = np.concatenate([xyz[valid].astype(np.float32), intensity[valid, None]], axis=1)
     time = time[valid] if time_name else None
-    return LoadedCloud(points=points, time=time, dropped=int((~valid).sum()), has_intensity=intensity_name is not None)
+    if time_unit_s is not None:
+        _check_time_unit(path, fields, time_name, time, time_unit_s)
+    return LoadedCloud(points=points, time=time, dropped=int((~valid).sum()), has_intensity=intensity_name is not None,
+                       time_unit_s=time_unit_s if time_name else None)
+
+
+def _check_time_unit(path, fields: dict, time_name: str | None, time: np.ndarray | None, time_unit_s: float) -> None:
+    """DataFormatError unless the cloud has a time field whose valid points span at most MAX_FRAME_SPAN_S."""
+    if time_name is None:
+        raise DataFormatError(path, f"a time unit was given (--time-unit) but the file has no time field (one of "
+                                    f"{', '.join(TIME_FIELDS)}; it has {', '.join(fields)}): drop --time-unit")
+    span_s = float(np.ptp(time)) * time_unit_s if len(time) else 0.0
+    if span_s > MAX_FRAME_SPAN_S:
+        unit = next((name for name, seconds in TIME_UNITS.items() if seconds == time_unit_s), f"{time_unit_s:g} s")
+        raise DataFormatError(path, f"its points' {time_name!r} spans {span_s:.4g} s in unit {unit}, more than a "
+                                    f"frame's {MAX_FRAME_SPAN_S:g} s: the recorder writes a smaller unit (try "
+                                    "--time-unit ms, us or ns)")
 
 
 # ---------------------------------------------------------------- PCD

@@ -17,7 +17,7 @@ import json
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,7 @@ from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
-from pcdet_memslidar.io.importer import SourceFrame, choose_mount, list_frames
+from pcdet_memslidar.io.importer import SourceFrame, check_time_unit, choose_mount, list_frames
 from pcdet_memslidar.io.pointclouds import SUFFIXES, LoadedCloud, cloud_from_fields, read_bin_fields
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
@@ -66,6 +66,7 @@ class DetectOptions:
     save_points: bool = False
     plot: bool = False
     precision: str = PRECISIONS[0]  # inference precision of the BEV backbone and head (models.detector.PRECISIONS)
+    time_unit_s: float | None = None  # seconds per unit of PCD / PLY / NPY time fields (None: their times unused)
 
 
 def resolve_format(src: Path, fmt: str) -> str:
@@ -85,13 +86,15 @@ def resolve_format(src: Path, fmt: str) -> str:
     return suffixes.pop()[1:]
 
 
-def recording_frames(src: Path, fmt: str) -> list[SourceFrame]:
-    """The frames of `src` in format `fmt` (FORMATS but 'auto': see resolve_format) in recording order."""
+def recording_frames(src: Path, fmt: str, time_unit_s: float | None = None) -> list[SourceFrame]:
+    """The frames of `src` in format `fmt` (FORMATS but 'auto': see resolve_format) in recording order;
+    time_unit_s: seconds per unit of PCD / PLY / NPY time fields."""
+    check_time_unit(fmt, time_unit_s)
     if fmt == "kitti":
         velodyne = src / "training" / "velodyne" if (src / "training").is_dir() else src / "velodyne"
         return [SourceFrame(frame.name, lambda path=velodyne / frame.name: _read_kitti_frame(path))
                 for frame in list_frames("bin", velodyne)]
-    return list_frames(fmt, src)
+    return list_frames(fmt, src, time_unit_s=time_unit_s)
 
 
 def _read_kitti_frame(velodyne: Path) -> LoadedCloud:
@@ -101,8 +104,8 @@ def _read_kitti_frame(velodyne: Path) -> LoadedCloud:
     times = velodyne.parent.parent / "time_offset" / velodyne.name
     if not times.is_file():
         return cloud_from_fields(fields, velodyne)
-    cloud = cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, velodyne)
-    return replace(cloud, time_unit_s=1.0)
+    return cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, velodyne,
+                             time_unit_s=1.0)
 
 
 class FrameVoxeliser(DatasetTemplate):
@@ -149,7 +152,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     refuse_overlap(out, [src], "--out")
     check_output_folder(out, COMMAND)
     fmt = resolve_format(src, options.fmt)
-    frames = recording_frames(src, fmt)
+    frames = recording_frames(src, fmt, options.time_unit_s)
     if not frames:
         raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)

@@ -175,3 +175,24 @@ def test_a_non_finite_mount_is_an_argument_error(tmp_path, clouds, capsys, mount
     code, error = _import(capsys, clouds, tmp_path / "real", "--mount", mount)
     assert code == 2 and f"argument --mount: --mount '{mount}': expected HEIGHT,TILT[,ROLL] as finite numbers" in error
     assert sorted(p.name for p in tmp_path.iterdir()) == ["clouds"]
+
+
+def test_time_unit_writes_the_time_offsets_of_npy_clouds_and_is_refused_where_it_cannot_apply(tmp_path, clouds,
+                                                                                            capsys):
+    np.save(clouds / "1.npy", np.array([[5.0, 0.0, 1.0, 3.0, 2_000], [6.0, 0.0, 1.0, 4.0, 52_000]]))  # [us]
+    out = tmp_path / "real"
+    code, error = _import(capsys, clouds, out, "--mount", "2,0", "--time-unit", "us")
+    assert code == 1 and "0.npy: a time unit was given (--time-unit) but the file has no time field" in error
+    assert not out.exists()
+    np.save(clouds / "0.npy", np.array([[5.0, 0.0, 1.0, 3.0, 7]]))
+    assert _import(capsys, clouds, out, "--mount", "2,0", "--time-unit", "us")[0] == 0
+    layout = KittiLayout(out)
+    assert read_point_times(layout.time_offset("000001"), 2).tolist() == [0.0, np.float32(0.05)]
+    assert read_point_times(layout.time_offset("000000"), 1).tolist() == [0.0]
+    code, error = _import(capsys, clouds, out, "--time-unit", "minutes")
+    assert code == 2 and "argument --time-unit: unknown time unit 'minutes': use one of s, ms, us, ns" in error
+    bfpc = cli.main(["import", "--format", "bfpc", "--src", str(clouds), "--out", str(tmp_path / "b"), "--time-unit",
+                     "s"])
+    assert bfpc == 1 and capsys.readouterr().err.startswith(
+        "error: --time-unit is for PCD, PLY and NPY clouds: format bfpc records the unit of its point times; drop "
+        "--time-unit")

@@ -186,3 +186,27 @@ def test_time_offsets_are_seconds_from_the_first_point_where_the_unit_is_known(t
         assert offsets is None
     else:
         assert offsets.dtype == np.float32 and offsets.tolist() == expected
+
+
+@pytest.mark.parametrize("unit, expected", [(1e-3, [0.0, 0.05, 0.1]), (1e-9, [0.0, 5e-8, 1e-7])])
+def test_a_time_unit_gives_a_pcd_its_time_offsets(tmp_path, unit, expected):
+    (tmp_path / "t.pcd").write_text("FIELDS x y z timestamp\nSIZE 4 4 4 8\nTYPE F F F F\nPOINTS 4\nDATA ascii\n"
+                                    "1 2 3 1000\n1 2 3 1050\n0 0 0 7\n1 2 3 1100\n")  # the zero point is dropped
+    assert read_point_cloud(tmp_path / "t.pcd").time_offsets() is None  # no unit: the times are not used
+    offsets = read_point_cloud(tmp_path / "t.pcd", time_unit_s=unit).time_offsets()
+    np.testing.assert_array_equal(offsets, np.array(expected, np.float32))
+
+
+def test_a_time_unit_is_refused_for_a_cloud_without_times_or_with_a_span_no_frame_has(tmp_path):
+    np.save(tmp_path / "x.npy", np.array([[1, 2, 3, 4]], np.float32))
+    with pytest.raises(DataFormatError) as error:
+        read_point_cloud(tmp_path / "x.npy", time_unit_s=1e-6)
+    assert str(error.value) == (f"{tmp_path / 'x.npy'}: a time unit was given (--time-unit) but the file has no time "
+                                "field (one of time, time_offset, timestamp, t, offset_time; it has x, y, z, "
+                                "intensity): drop --time-unit")
+    np.save(tmp_path / "t.npy", np.array([[1, 2, 3, 4, 0], [1, 2, 3, 4, 100_001]], np.float64))  # 0.1 s in us
+    assert read_point_cloud(tmp_path / "t.npy", time_unit_s=1e-6).time_offsets().tolist() == [0.0, np.float32(0.100001)]
+    with pytest.raises(DataFormatError) as error:
+        read_point_cloud(tmp_path / "t.npy", time_unit_s=1e-3)  # the same times read as milliseconds: 100 s
+    assert str(error.value) == (f"{tmp_path / 't.npy'}: its points' 'time' spans 100 s in unit ms, more than a "
+                                "frame's 10 s: the recorder writes a smaller unit (try --time-unit ms, us or ns)")

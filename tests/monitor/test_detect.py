@@ -10,7 +10,7 @@ import pytest
 
 from pcdet_memslidar import cli
 from pcdet_memslidar.config import load_config
-from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect, recording_frames
@@ -199,3 +199,16 @@ def test_a_frame_period_that_is_not_a_finite_positive_number_is_refused_in_one_l
     assert error.value.code == 2
     assert capsys.readouterr().err.strip() == ("memslidar detect: error: --batch-size must be >= 1 and --frame-period "
                                                 "a finite number of seconds > 0")
+
+
+def test_a_time_unit_times_the_frames_of_a_folder_and_is_refused_for_a_kitti_layout(tmp_path, smoke_checkpoint):
+    (tmp_path / "npy").mkdir()
+    np.save(tmp_path / "npy" / "0.npy", np.array([[5.0, 0.0, 1.0, 3.0, 1e9], [6.0, 0.0, 1.0, 4.0, 1.1e9]]))  # [ns]
+    frame, = recording_frames(tmp_path / "npy", "npy", time_unit_s=1e-9)
+    np.testing.assert_array_equal(frame.load().time_offsets(), np.array([0.0, 0.1], np.float32))
+    assert recording_frames(tmp_path / "npy", "npy")[0].load().time_offsets() is None
+    assert cli.main(["detect", "--cfg", REPO_CFG, "--profile", "smoke", "--ckpt", str(smoke_checkpoint), "--src",
+                     str(tmp_path / "npy"), "--time-unit", "ns", "--out", str(tmp_path / "out")]) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["frames_with_point_times"] == 1
+    with pytest.raises(ConfigError, match="format kitti records the unit of its point times; drop --time-unit"):
+        recording_frames(tmp_path, "kitti", time_unit_s=1e-9)
