@@ -102,9 +102,11 @@ def _check_time_unit(path, fields: dict, time_name: str | None, time: np.ndarray
     span_s = float(np.ptp(time)) * time_unit_s if len(time) else 0.0
     if span_s > MAX_FRAME_SPAN_S:
         unit = next((name for name, seconds in TIME_UNITS.items() if seconds == time_unit_s), f"{time_unit_s:g} s")
+        smaller = [name for name, seconds in TIME_UNITS.items() if seconds < time_unit_s]
+        fix = (f"the recorder writes a smaller unit (try --time-unit {' or '.join(smaller)})" if smaller else
+               "these are no times within one frame (check the file's time field)")
         raise DataFormatError(path, f"its points' {time_name!r} spans {span_s:.4g} s in unit {unit}, more than a "
-                                    f"frame's {MAX_FRAME_SPAN_S:g} s: the recorder writes a smaller unit (try "
-                                    "--time-unit ms, us or ns)")
+                                    f"frame's {MAX_FRAME_SPAN_S:g} s: {fix}")
 
 
 # ---------------------------------------------------------------- PCD

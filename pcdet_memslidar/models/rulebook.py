@@ -8,11 +8,11 @@ a rulebook and three dense steps:
 - per offset: gather the input rows, multiply by that offset's weight (a torch matrix product), add into the output
   rows. For one offset the pairs are one-to-one (an output cell takes at most one input, an input reaches at most
   one output), so the adds of one offset never collide, forward or backward, and offsets are summed in one fixed
-  order. The products that feed the output and the input gradient sum over 64 channels or fewer, which BLAS does
-  not split between threads; the weight gradient sums over all pairs of an offset, which it does split on some CPUs
-  (MKL on Intel Xeon), so that product runs on one thread. Hence the result does not depend on the thread count
-  (tested to the bit), and a training's rulebooks and convs may run on fewer threads when other processes need the
-  cores.
+  order. The products that feed the output and the input gradient sum over the channels (at most 64 here), which
+  BLAS did not split between threads on any CPU tried; the weight gradient sums over all pairs of an offset, which
+  it does split on some (MKL on an Intel Xeon), so that product runs on one thread. Hence the result does not
+  depend on the thread count (tested to the bit), and a training's rulebooks and convs may run on fewer threads
+  when other processes need the cores.
 Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
 (training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
 """

@@ -209,4 +209,7 @@ def test_a_time_unit_is_refused_for_a_cloud_without_times_or_with_a_span_no_fram
     with pytest.raises(DataFormatError) as error:
         read_point_cloud(tmp_path / "t.npy", time_unit_s=1e-3)  # the same times read as milliseconds: 100 s
     assert str(error.value) == (f"{tmp_path / 't.npy'}: its points' 'time' spans 100 s in unit ms, more than a "
-                                "frame's 10 s: the recorder writes a smaller unit (try --time-unit ms, us or ns)")
+                                "frame's 10 s: the recorder writes a smaller unit (try --time-unit us or ns)")
+    np.save(tmp_path / "t.npy", np.array([[1, 2, 3, 4, 0], [1, 2, 3, 4, 2e10]], np.float64))
+    with pytest.raises(DataFormatError, match=r"spans 20 s in unit ns, .*: these are no times within one frame"):
+        read_point_cloud(tmp_path / "t.npy", time_unit_s=1e-9)
