@@ -242,16 +242,15 @@ class SparseConvFunction(torch.autograd.Function):
         grad_out = grad_out.contiguous()
         grad_features = torch.zeros_like(features) if ctx.needs_input_grad[0] else None
         grad_weight = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
-        if grad_features is not None:
-            with on_threads(ctx.threads):
-                for k, inputs, outputs in ctx.rules.pairs:
-                    rows = grad_out.index_select(0, outputs) @ weight[k].t()
-                    _scatter_add(grad_features.numpy(), inputs.numpy(), rows.numpy())
+        with on_threads(ctx.threads):
+            grad_rows = [grad_out.index_select(0, outputs) for _, _, outputs in ctx.rules.pairs]
+            if grad_features is not None:
+                for (k, inputs, _), rows in zip(ctx.rules.pairs, grad_rows):
+                    _scatter_add(grad_features.numpy(), inputs.numpy(), (rows @ weight[k].t()).numpy())
         if grad_weight is not None:
             with on_threads(1):
-                for k, inputs, outputs in ctx.rules.pairs:
-                    torch.mm(features.index_select(0, inputs).t(), grad_out.index_select(0, outputs),
-                             out=grad_weight[k])
+                for (k, inputs, _), rows in zip(ctx.rules.pairs, grad_rows):
+                    torch.mm(features.index_select(0, inputs).t(), rows, out=grad_weight[k])
         return grad_features, grad_weight, None, None
 
 
