@@ -6,8 +6,9 @@ busy processes beside it, as shipped and with other OpenMP settings, measured in
 
 An edge box shares its cores. OpenMP threads (torch's and numba's share one libgomp pool) wait for each other at
 the end of every parallel region; libgomp's default lets a waiting thread spin, which on a busy machine takes the
-core from the very thread it waits for. As shipped, the package shortens that spin (pcdet_memslidar/__init__.py) and
-inference takes only the cores no other process is using (runtime.common.threads_giving_way). Each setting runs in a
+core from the very thread it waits for. As shipped, the package shortens that spin (pcdet_memslidar/__init__.py),
+inference takes only the cores no other process is using (runtime.common.threads_giving_way), and the commands ask
+Linux for a short time slice (utils.cores.shorten_time_slice). Each setting runs in a
 fresh process (libgomp reads its settings when it loads), first idle, then with the busy processes (pure-Python
 loops) started by this script; ratios are loaded / idle of the same setting. Prints a Markdown table; JSON to
 output/benchmark/load_benchmark.json.
@@ -23,17 +24,23 @@ import time
 from pathlib import Path
 
 from pcdet_memslidar.utils.atomic import write_text
-from pcdet_memslidar.utils.cores import available_cores
+from pcdet_memslidar.utils.cores import available_cores, shorten_time_slice
 
 SETTINGS = {  # name -> (environment of the measured process (None removes a variable), inference threads give way)
-    "as shipped: GOMP_SPINCOUNT 10000, inference threads give way": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None},
-                                                                      True),
-    "before: libgomp's default spin count, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "300000"},
-                                                           False),
-    "OMP_WAIT_POLICY=PASSIVE, fixed threads": ({"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None}, False),
-    "GOMP_SPINCOUNT 10000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None}, False),
-    "GOMP_SPINCOUNT 1000, fixed threads": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"}, False),
-    "GOMP_SPINCOUNT 1000, inference threads give way": ({"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000"}, True),
+    "as shipped: GOMP_SPINCOUNT 10000, inference threads give way, short slice": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None, "MEMSLIDAR_SLICE_US": None}, True),
+    "as shipped, but the kernel's time slice": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None, "MEMSLIDAR_SLICE_US": "0"}, True),
+    "before: libgomp's default spin count, fixed threads": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "300000", "MEMSLIDAR_SLICE_US": "0"}, False),
+    "OMP_WAIT_POLICY=PASSIVE, fixed threads": (
+        {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": None, "MEMSLIDAR_SLICE_US": "0"}, False),
+    "GOMP_SPINCOUNT 10000, fixed threads": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": None, "MEMSLIDAR_SLICE_US": "0"}, False),
+    "GOMP_SPINCOUNT 1000, fixed threads": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000", "MEMSLIDAR_SLICE_US": "0"}, False),
+    "GOMP_SPINCOUNT 1000, inference threads give way": (
+        {"OMP_WAIT_POLICY": None, "GOMP_SPINCOUNT": "1000", "MEMSLIDAR_SLICE_US": "0"}, True),
 }
 BUSY = "while True:\n    pass\n"
 
@@ -51,6 +58,7 @@ def measure(args) -> dict:
     from pcdet_memslidar.runtime.common import get_device, set_random_seed, threads_giving_way
 
     torch.set_num_threads(args.threads)
+    shorten_time_slice()  # as `memslidar train`, `test` and `detect` do; MEMSLIDAR_SLICE_US=0 keeps the kernel's
     cfg = load_config(args.cfg, profile=args.profile)
     device = get_device()
     dataset, _ = frames_for(cfg, training=False, count=args.frames + args.warmup)

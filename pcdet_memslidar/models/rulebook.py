@@ -14,7 +14,8 @@ a rulebook and three dense steps:
   depend on the thread count (tested to the bit), and a training's rulebooks and convs may run on fewer threads
   when other processes need the cores.
 Without grad (inference) the eval-mode BatchNorm after each conv is folded into its weight and bias; with grad
-(training) the conv is an autograd Function and BatchNorm and ReLU are torch's own layers.
+(training) the conv is an autograd Function, the BatchNorm torch's kernels on one thread (BatchNormFunction: on more,
+torch splits the rows between threads and the bits change), the ReLU torch's own.
 """
 from __future__ import annotations
 
@@ -230,28 +231,67 @@ class SparseConvFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, features: torch.Tensor, weight: torch.Tensor, rules: Rulebook, threads: int) -> torch.Tensor:
-        features, weight = features.contiguous(), weight.contiguous()
-        ctx.save_for_backward(features, weight)
-        ctx.rules, ctx.threads = rules, threads
-        with on_threads(threads):
+        with on_threads(threads):  # every copy too: a parallel region on a busy machine waits for a core
+            features, weight = features.contiguous(), weight.contiguous()
+            ctx.save_for_backward(features, weight)
+            ctx.rules, ctx.threads = rules, threads
             return convolve(features, rules, weight, weight.new_zeros(weight.shape[-1]))
 
     @staticmethod
     def backward(ctx, grad_out: torch.Tensor):
         features, weight = ctx.saved_tensors
-        grad_out = grad_out.contiguous()
-        grad_features = torch.zeros_like(features) if ctx.needs_input_grad[0] else None
-        grad_weight = torch.zeros_like(weight) if ctx.needs_input_grad[1] else None
+        grad_features = grad_weight = None
         with on_threads(ctx.threads):
+            grad_out = grad_out.contiguous()
             grad_rows = [grad_out.index_select(0, outputs) for _, _, outputs in ctx.rules.pairs]
-            if grad_features is not None:
+            if ctx.needs_input_grad[0]:
+                grad_features = torch.zeros_like(features)
                 for (k, inputs, _), rows in zip(ctx.rules.pairs, grad_rows):
                     _scatter_add(grad_features.numpy(), inputs.numpy(), (rows @ weight[k].t()).numpy())
-        if grad_weight is not None:
+        if ctx.needs_input_grad[1]:
             with on_threads(1):
+                grad_weight = torch.zeros_like(weight)
                 for (k, inputs, _), rows in zip(ctx.rules.pairs, grad_rows):
                     torch.mm(features.index_select(0, inputs).t(), rows, out=grad_weight[k])
+                # laid out as spconv's parameter (kernel_weight's view of it): autograd's way back copies nothing
+                grad_weight = grad_weight.permute(2, 0, 1).contiguous().permute(1, 2, 0)
         return grad_features, grad_weight, None, None
+
+
+class BatchNormFunction(torch.autograd.Function):
+    """torch's training-mode BatchNorm of (V, C) rows (batch statistics, running statistics updated in place), forward
+    and backward on one thread: on more, torch splits the rows between threads and the bits depend on the thread
+    count (tools/thread_census.py)."""
+
+    @staticmethod
+    def forward(ctx, features, weight, bias, running_mean, running_var, momentum: float, eps: float):
+        with on_threads(1):
+            out, mean, invstd = torch.native_batch_norm(features, weight, bias, running_mean, running_var, True,
+                                                        momentum, eps)
+        ctx.save_for_backward(features, weight, mean, invstd)
+        ctx.eps = eps
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        features, weight, mean, invstd = ctx.saved_tensors
+        mask = list(ctx.needs_input_grad[:3])
+        with on_threads(1):
+            grads = torch.ops.aten.native_batch_norm_backward(grad_out.contiguous(), features, weight, None, None,
+                                                              mean, invstd, True, ctx.eps, mask)
+        return *grads, None, None, None, None
+
+
+def batch_norm(norm: nn.BatchNorm1d, features: torch.Tensor) -> torch.Tensor:
+    """norm(features) of (V, C) rows, in training mode (batch statistics) on one thread (BatchNormFunction)."""
+    if not norm.training:
+        return norm(features)
+    momentum = norm.momentum
+    if norm.track_running_stats:
+        norm.num_batches_tracked.add_(1)
+        momentum = 1.0 / float(norm.num_batches_tracked) if momentum is None else momentum  # nn.BatchNorm's rule
+    return BatchNormFunction.apply(features, norm.weight, norm.bias, norm.running_mean, norm.running_var,
+                                   momentum or 0.0, norm.eps)
 
 
 def kernel_weight(conv: spconv.conv.SparseConvolution) -> torch.Tensor:
@@ -312,7 +352,7 @@ def run(module: nn.Module, tensor: spconv.SparseConvTensor, cache: dict,
                 previous, spconv.conv.SparseConvolution):
             continue  # folded into the conv before it
         elif isinstance(layer, nn.BatchNorm1d):
-            features = layer(features)
+            features = batch_norm(layer, features)
         elif isinstance(layer, nn.ReLU):
             features = torch.relu(features) if grad else features.clamp_min_(0)
         else:

@@ -12,6 +12,7 @@ import torch
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.runtime.common import get_device, set_torch_threads
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size
+from pcdet_memslidar.utils.cores import shorten_time_slice
 
 AP_KEYS = ("AP3D_R40", "APBEV_R40", "AP3D_R11", "APBEV_R11")
 
@@ -35,13 +36,15 @@ def local_process() -> Process:
 
 def start_process(launcher: str = "none", tcp_port: int = 18888, local_rank: int | None = None) -> Process:
     """Join the process group (launcher 'pytorch': one process per device under torchrun; 'none': this process
-    alone), give this process its share of the free cores as torch threads, and pick its device."""
+    alone), give this process its share of the free cores as torch threads and a short time slice (for a busy
+    machine: utils.cores.shorten_time_slice), and pick its device."""
     if launcher not in ("none", "pytorch"):
         raise ConfigError(f"--launcher {launcher} is not supported: start the processes with torchrun and "
                           f"--launcher pytorch")
     dist = launcher == "pytorch"
     world_size, rank = init_dist_pytorch(tcp_port, local_rank) if dist else (1, 0)
     device = get_device(int(os.environ.get("LOCAL_RANK", 0)) if dist else 0)
+    shorten_time_slice()
     return Process(device, set_torch_threads(local_world_size() if dist else 1), dist, rank, world_size)
 
 

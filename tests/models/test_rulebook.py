@@ -1,6 +1,7 @@
 """models.rulebook on hand-made cells with exact expected values: a submanifold conv at a corner of the grid and
 across frames, its gradients, a stride-2 conv reaching 8 output cells, conv_out's (3, 1, 1) kernel, BatchNorm
-folding, and the layers it refuses; the backward against finite differences in float64."""
+folding, and the layers it refuses; the backward against finite differences in float64; the same bits on one and two
+threads for the convs and the training BatchNorm."""
 import numpy as np
 import pytest
 import spconv.pytorch as spconv
@@ -128,6 +129,35 @@ def test_z_conv_of_conv_out_and_its_output_grid():
     assert out.spatial_shape == [2, 6, 7]
     assert dict(zip(map(tuple, out.indices.tolist()), out.features[:, 0].tolist())) == {
         (0, 1, 3, 4): 1 * 1 + 3 * 10, (0, 0, 3, 4): 3 * 1}
+
+
+def test_training_batch_norm_gives_the_same_bits_on_one_and_two_threads():
+    """torch's BatchNorm of (V, C) rows splits them between threads, so its bits differ on one and two (asserted
+    here: the trap); the sparse blocks' training BatchNorm gives torch's one-thread bits on two threads, forward,
+    backward and running statistics, so it too may run beside busy processes without changing a training."""
+    generator = torch.Generator().manual_seed(2)
+    features = torch.randn(800, 32, generator=generator) * 3 + 1
+    upstream = torch.randn(800, 32, generator=generator)
+    threads = torch.get_num_threads()
+
+    def results(count: int, forward) -> list[torch.Tensor]:
+        norm = nn.BatchNorm1d(32, eps=1e-3, momentum=0.01)
+        with torch.no_grad():
+            norm.weight.copy_(torch.linspace(0.5, 2.0, 32))
+            norm.bias.copy_(torch.linspace(-1.0, 1.0, 32))
+        inputs = features.clone().requires_grad_()
+        with rulebook.on_threads(count):
+            out = forward(norm, inputs)
+            (out * upstream).sum().backward()
+        return [out.detach(), inputs.grad, norm.weight.grad, norm.bias.grad, norm.running_mean, norm.running_var,
+                norm.num_batches_tracked]
+
+    torch_one, torch_two = results(1, nn.BatchNorm1d.__call__), results(2, nn.BatchNorm1d.__call__)
+    ours_two, ours_one = results(2, rulebook.batch_norm), results(1, rulebook.batch_norm)
+    assert not all(torch.equal(a, b) for a, b in zip(torch_one, torch_two))
+    for ours in (ours_one, ours_two):
+        assert all(torch.equal(a, b) for a, b in zip(torch_one, ours))
+    assert ours_two[-1].item() == 1 and torch.get_num_threads() == threads
 
 
 def test_batch_norm_is_folded_and_relu_applied():
