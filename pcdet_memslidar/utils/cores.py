@@ -62,13 +62,13 @@ def shorten_time_slice() -> int:
     thread with a shorter slice sooner, in shorter turns, for the same share of the CPU; older kernels ignore the
     request. Each thread keeps its policy and nice value; real-time threads are left alone. Returns how many
     threads took the request (0 off Linux on x86-64 or arm64)."""
-    number = _SCHED_SETATTR.get(os.uname().machine) if hasattr(os, "sched_getscheduler") else None
-    if number is None:
-        return 0
     value = os.environ.get(SLICE_VARIABLE, str(DEFAULT_SLICE_US))
     if not value.isdigit():
         raise ConfigError(f"{SLICE_VARIABLE}={value!r}: give whole microseconds, e.g. {DEFAULT_SLICE_US} (0: the "
                           f"kernel's own slice)")
+    number = _SCHED_SETATTR.get(os.uname().machine) if hasattr(os, "sched_getscheduler") else None
+    if number is None:
+        return 0
     microseconds = int(value)
     syscall = ctypes.CDLL(None, use_errno=True).syscall
     taken = 0
