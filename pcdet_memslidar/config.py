@@ -45,7 +45,7 @@ from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.grid import check_config_grid
 
 BASE_KEY = "_BASE_CONFIG_"
-PATH_KEYS = ("DATA_PATH",)  # string values resolved relative to the file that wrote them
+PATH_KEYS = ("DATA_PATH", "BACKGROUND_MODEL")  # string values resolved relative to the file that wrote them
 DEFAULT_PROFILE = "paper"
 _PACKAGE_DIR = Path(__file__).resolve().parent
 # A checkout (or editable install) keeps its configs in <repository>/cfgs and writes output/ and data/ there, as
@@ -66,6 +66,8 @@ OPTIONAL_KEYS = (
     "PRETRAIN",  # pre-training then fine-tuning (runtime.pretrain; cfgs/m5.yaml)
     "TRACKER",  # tracker parameters of `memslidar detect` (monitor.tracker.TrackerConfig)
     "HOOK",  # OpenPCDet's training hooks (runtime.hooks: DisableAugmentationHook)
+    "DATA_CONFIG.BACKGROUND_MODEL",  # a site's background.npz, for the background_depth feature (geometry.background)
+    "MODEL.BACKGROUND_SUBTRACTION",  # settings of MODEL.NAME BackgroundSubtraction (models.background_subtraction)
 )
 
 

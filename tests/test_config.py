@@ -207,7 +207,8 @@ def test_unknown_keys_in_a_file_fail_at_load_with_file_line_and_close_match(proj
         load_config(in_profile)  # checked even when another profile is used
     no_match = _write(project / "cfgs/models/none.yaml", "_BASE_CONFIG_: base.yaml\nMODEL: {XYZ: 1}\n")
     with pytest.raises(ConfigError, match=r"none\.yaml:2: unknown key MODEL\.XYZ; known keys: NAME, VFE, .*"
-                                          r"POST_PROCESSING\. Fix the spelling or remove the key$"):
+                                          r"POST_PROCESSING, BACKGROUND_SUBTRACTION\. Fix the spelling or remove the "
+                                          r"key$"):
         load_config(no_match)
 
 

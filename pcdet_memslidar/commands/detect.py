@@ -19,7 +19,8 @@ from pcdet_memslidar.utils.cores import shorten_time_slice
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cfg", "--cfg_file", dest="cfg_file", required=True, help="the detector's config (YAML)")
-    parser.add_argument("--ckpt", required=True, help="its checkpoint (.pth)")
+    parser.add_argument("--ckpt", default=None,
+                        help="its checkpoint (.pth); none for a detector without weights (BackgroundSubtraction)")
     parser.add_argument("--src", "--data_path", dest="src", required=True, type=Path,
                         help="a recording (.bfpc, many frames), a frame file, a folder of frames or a KITTI-layout "
                              "folder")

@@ -4,6 +4,7 @@ its empty recording with people composited into it (pcdet_memslidar.experiments.
     memslidar site check --site FILE [--out DIR]
     memslidar site train --site FILE [--out DIR] [--profile quick] [--frames N] [--test-frames N] [--holdout F]
                          [--seed S] [--sim-share F --sim-site DOMAIN|FILE] [--compare REPRODUCE_OUT]
+                         [--detectors background second second_background]
                          [--set KEY VALUE ...]
 """
 from __future__ import annotations
@@ -19,7 +20,8 @@ from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_ground_check
 from pcdet_memslidar.experiments.report import HEADLINE
-from pcdet_memslidar.experiments.site_detector import SitePlan, site_extent, train_site
+from pcdet_memslidar.experiments.site_detector import SITE_DETECTORS, SitePlan, site_extent, train_site
+from pcdet_memslidar.experiments.site_report import NAMES
 from pcdet_memslidar.sim.composite import estimate_background_mount, recording_points
 from pcdet_memslidar.sim.site import load_site
 
@@ -47,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compare", type=Path, default=None,
                         help="a `memslidar reproduce` output folder: its seed-0 models' false alarms on the same "
                              "empty frames go into the report")
+    parser.add_argument("--detectors", nargs="+", default=list(SITE_DETECTORS), choices=SITE_DETECTORS,
+                        help="which detectors to build and compare (default: all): background subtraction, SECOND, "
+                             "SECOND with each point's background_depth")
     add_set(parser)
 
 
@@ -76,13 +81,18 @@ def run(args: argparse.Namespace) -> int:
                         f"--seed {args.seed}", *([f"--out {args.out}"] if args.out else []),
                         *([f"--sim-share {args.sim_share} --sim-site {args.sim_site}"] if args.sim_share else []),
                         *([f"--compare {args.compare}"] if args.compare else []),
+                        *([f"--detectors {' '.join(args.detectors)}"]
+                          if args.detectors != list(SITE_DETECTORS) else []),
                         *(["--set", *args.set_cfgs] if args.set_cfgs else [])])
     results = train_site(args.site, out.resolve(), SitePlan(args.frames, args.test_frames, args.holdout, args.seed,
                                                             args.sim_share, args.sim_site),
-                         args.profile, args.compare, command, args.set_cfgs)
-    for model, entry in results["false_alarms"].items():
-        print(f"{model}: {entry['detections_per_frame']:.2f} detections / frame, {entry['confirmed_tracks']} "
-              f"confirmed tracks on the empty held-out frames")
-    print(f"site: {HEADLINE} {results['test'][HEADLINE]:.4f} on people composited into the held-out frames")
+                         args.profile, args.compare, command, args.set_cfgs, tuple(args.detectors))
+    empty, distractors = results["false_alarms"]["empty"], results["false_alarms"]["distractors"]
+    for model, entry in empty.items():
+        print(f"{NAMES.get(model, model)}: {entry['detections_per_frame']:.2f} detections / frame on the empty "
+              f"held-out frames, {distractors[model]['detections_per_frame']:.2f} on distractors")
+    for detector, scores in results["scores"].items():
+        print(f"{NAMES[detector]}: {HEADLINE} {scores['test'][HEADLINE]:.4f} on people composited into the held-out "
+              f"frames")
     print(f"report: {out / 'report.md'}")
     return 0

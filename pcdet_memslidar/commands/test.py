@@ -18,6 +18,7 @@ from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.diagnose import extent_agreement, format_diagnosis, part_ablation
 from pcdet_memslidar.experiments.report import json_safe
+from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.experiment import ap_line, scalars, test_split
@@ -63,13 +64,13 @@ def diagnose(dataset, result_dir: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if not args.eval_all and not args.ckpt:
-        raise ConfigError("pass --ckpt <checkpoint.pth> or --eval-all")
     cfg, process, output_dir = setup_experiment(args)
+    if not args.eval_all and not args.ckpt and is_learned(cfg.MODEL):
+        raise ConfigError("pass --ckpt <checkpoint.pth> or --eval-all")
     split = test_split(cfg)
     eval_dir = output_dir / "eval"
     if not args.eval_all:
-        epoch_id = checkpoint_epoch(args.ckpt)
+        epoch_id = checkpoint_epoch(args.ckpt) if args.ckpt else None
         eval_dir = eval_dir / f"epoch_{epoch_id if epoch_id is not None else 'no_number'}" / split
     else:
         eval_dir = eval_dir / "eval_all_default"

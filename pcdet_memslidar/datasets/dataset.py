@@ -14,9 +14,11 @@ import numpy as np
 import torch
 
 from ..errors import ConfigError, DataFormatError, OutputError
+from ..geometry.background import BackgroundModel
 from .processor import DataProcessor, PointFeatureEncoder
 
 USER_ERRORS = (DataFormatError, ConfigError, OutputError)  # the errors whose message names the file and the fix
+BACKGROUND_FEATURE = "background_depth"  # a src feature computed from the site's background model, not stored
 
 
 class DatasetTemplate(torch.utils.data.Dataset):
@@ -30,6 +32,7 @@ class DatasetTemplate(torch.utils.data.Dataset):
         self.root_path = Path(root_path) if root_path is not None else Path(dataset_cfg.DATA_PATH)
         self.point_cloud_range = np.array(dataset_cfg.POINT_CLOUD_RANGE, dtype=np.float32)
         self.point_feature_encoder = PointFeatureEncoder(dataset_cfg.POINT_FEATURE_ENCODING, self.point_cloud_range)
+        self.background = self._background_model(dataset_cfg)
         self.data_augmentor = None  # set by the subclass once it knows its gt databases (training only)
         self.data_processor = DataProcessor(dataset_cfg.DATA_PROCESSOR, self.point_cloud_range, training,
                                             self.point_feature_encoder.num_point_features)
@@ -40,6 +43,27 @@ class DatasetTemplate(torch.utils.data.Dataset):
         self._merge_all_iters_to_one_epoch = False
         self.rng = np.random.default_rng(torch.initial_seed())  # a fixed torch seed gives reproducible samples
         self._worker_seed = None
+
+    @staticmethod
+    def _background_model(dataset_cfg) -> BackgroundModel | None:
+        """The site's background model (DATA_CONFIG.BACKGROUND_MODEL, a path; None where not set); ConfigError
+        naming the key where src_feature_list names BACKGROUND_FEATURE without it."""
+        named = BACKGROUND_FEATURE in dataset_cfg.POINT_FEATURE_ENCODING.src_feature_list
+        if not named and not dataset_cfg.get("BACKGROUND_MODEL"):
+            return None
+        if not dataset_cfg.get("BACKGROUND_MODEL"):
+            raise ConfigError(f"POINT_FEATURE_ENCODING.src_feature_list names {BACKGROUND_FEATURE}: set "
+                              f"DATA_CONFIG.BACKGROUND_MODEL to the site's background.npz (memslidar site train "
+                              f"writes it)")
+        return BackgroundModel.load(dataset_cfg.BACKGROUND_MODEL)
+
+    def point_features(self, points: np.ndarray) -> np.ndarray:
+        """(N, 4) points as stored [x, y, z, intensity] (ground frame) -> (N, len(src_feature_list)): with
+        BACKGROUND_FEATURE, each point's background_depth [m] appended (geometry.background). The one place the
+        feature is computed: training, test and detect read frames through it."""
+        if BACKGROUND_FEATURE not in self.point_feature_encoder.src_feature_list:
+            return points
+        return np.concatenate([points[:, :4], self.background.depth(points)[:, None]], axis=1).astype(np.float32)
 
     @property
     def mode(self) -> str:

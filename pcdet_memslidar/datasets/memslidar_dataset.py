@@ -117,12 +117,13 @@ class MEMSLidarDataset(*_template_bases()):
                            f"and POINT_CLOUD_RANGE cropping: check that the range covers the labelled people")
 
     def get_frame(self, index: int) -> dict:
-        """Raw input of frame `index`: points (N, 4) float32, gt_names (M,), gt_boxes (M, 7), frame_id, metadata; in
-        testing also point_times (N,) float32 [s] where the frame keeps its time offsets (the box step's drift)."""
+        """Raw input of frame `index`: points (N, 4+) float32 (point_features), gt_names (M,), gt_boxes (M, 7),
+        frame_id, metadata; in testing also point_times (N,) float32 [s] where the frame keeps its time offsets (the
+        box step's drift)."""
         info = self.infos[index]
         layout = KittiLayout(info["root"])
         frame = {
-            "points": kitti.read_points(layout.velodyne(info["frame_id"])),
+            "points": self.point_features(kitti.read_points(layout.velodyne(info["frame_id"]))),
             "gt_names": np.asarray(info["annos"]["name"]),
             "gt_boxes": np.asarray(info["annos"]["gt_boxes_lidar"], dtype=np.float32).reshape(-1, 7),
             "frame_id": f"{info['source']}/{info['frame_id']}",

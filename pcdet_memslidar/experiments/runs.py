@@ -21,6 +21,7 @@ import torch
 
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.experiments.report import HEADLINE, json_safe, score_run
+from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
 from pcdet_memslidar.runtime.predict import predict
@@ -83,8 +84,10 @@ def run_model(job: dict, progress=None) -> dict:
     torch.set_num_threads(job["threads"])
     cfg, run_dir = job["cfg"], Path(job["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
-    check_run_config(cfg, run_dir)
-    if (run_dir / RUN_FILE).is_file():
+    learned = is_learned(cfg.MODEL)  # a detector without weights is only tested, again whenever asked: it is cheap
+    if learned:
+        check_run_config(cfg, run_dir)
+    if learned and (run_dir / RUN_FILE).is_file():
         run = json.loads((run_dir / RUN_FILE).read_text())
         for entry in run["curve"] if progress is not None else []:
             progress(entry["epoch"])
@@ -92,7 +95,8 @@ def run_model(job: dict, progress=None) -> dict:
     logger = create_logger(run_dir / "log.txt", name=f"pcdet_memslidar.{job['model']}.{job['seed']}",
                            console=progress is None)
     started = time.perf_counter()
-    checkpoint = train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress, job["every_epoch"])
+    checkpoint = (train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress, job["every_epoch"])
+                  if learned else None)
     trained = time.perf_counter()
     result = predict(cfg, checkpoint, run_dir / "eval", logger, workers=job["workers"])
     pred_dir = prediction_folder(run_dir / "eval") / cfg.DATA_CONFIG.TEST_SOURCE.NAME

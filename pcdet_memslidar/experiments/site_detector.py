@@ -1,20 +1,34 @@
-"""`memslidar site train`: a detector for one site from a recording of it empty, without annotating.
+"""`memslidar site train`: detectors for one site from a recording of it empty, without annotating.
+
+Three detectors (SITE_DETECTORS), side by side on the same frames:
+- `background`: background subtraction (models.background_subtraction), what a site engineer would build;
+- `second`: SECOND trained on composited frames, as the bundled models but on the site's own background;
+- `second_background`: the same SECOND with each point's background_depth (geometry.background) as a feature.
 
 The story, one stage per line (each stage's wall time goes into the report):
-1. split the background recording by time: its first frames are backgrounds for training, the last `holdout`
-   share is held out (never seen in training);
-2. data: people composited into the training backgrounds (`train`), optionally frames of a simulated scene mixed in
-   (`sim`, a share of the training frames), people composited into the held-out backgrounds (`test`, another
-   seed), and the held-out frames as they are (`empty`: nobody in them), all in their ground frame;
-3. config: the shipped SECOND config with the site's grid (grid.fitted_range over the walkable area, for every
-   profile) and these sources, written as <out>/site.yaml (it is also what `memslidar detect --cfg` takes);
-4. train and test it (runs.run_model: AP 3D at IoU 0.5 on the composited held-out frames);
-5. false alarms: `memslidar detect` over the empty held-out frames with this model and with each bundled
-   checkpoint given (--compare): detections per frame at the tracker's min_score, confirmed tracks per minute;
+1. (a site with a scene instead of a recording: its empty recording is simulated first, <out>/empty_recording/)
+   split the background recording by time: its first frames are backgrounds for training, the last `holdout`
+   share is held out (never seen in training); the background model is learned from the training frames only
+   (<out>/background.npz);
+2. data: people (and distractors: boxes, pallets, carts, a forklift, open doors, posts, never labelled) composited
+   into the training backgrounds (`train`), optionally frames of a simulated scene mixed in (`sim`, a share of the
+   training frames); on the held-out backgrounds, with other seeds: people (`test`), people in pairs (`pairs`),
+   people beside distractors (`test_distractors`), distractors and nobody (`distractors`), and the held-out frames
+   as they are (`empty`), all in their ground frame;
+3. configs: the shipped SECOND config with the site's grid (grid.fitted_range over the walkable area, for every
+   profile) and these sources, one per detector: <out>/site.yaml (second), site_background.yaml,
+   site_classical.yaml (what `memslidar detect --cfg` takes); the classical detector's settings are chosen on the
+   validation part of `train` (experiments.site_classical);
+4. train the learned detectors (both at once, one core each) and test every detector (runs.run_model: AP 3D at IoU
+   0.5 on each composited held-out set, with bootstrap intervals over its frames);
+5. false alarms: `memslidar detect` over the empty held-out frames and the distractor frames with each detector and
+   each bundled checkpoint given (--compare): detections per frame at the tracker's min_score, confirmed tracks per
+   minute, frames per second;
 6. figure and report: <out>/report.md, results.json, site_detections.png.
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import datetime
 import json
@@ -26,30 +40,46 @@ import yaml
 from easydict import EasyDict
 
 from pcdet_memslidar.config import CONFIG_DIR, cfg_from_yaml_file, load_config
+from pcdet_memslidar.datasets.dataset import BACKGROUND_FEATURE
 from pcdet_memslidar.datasets.infos import create_domain_infos
 from pcdet_memslidar.datasets.mixing import Source, source_counts
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.evaluation.bootstrap import ap_interval, frame_matches
 from pcdet_memslidar.evaluation.figures import plot_frames
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.experiments.report import HEADLINE, environment, json_safe, write_report
-from pcdet_memslidar.experiments.runs import RUN_CONFIG, RUN_FILE, StageClock, run_model
+from pcdet_memslidar.experiments.report import environment, frame_predictions, json_safe, score_run, write_report
+from pcdet_memslidar.experiments.runs import RUN_CONFIG, RUN_FILE, StageClock, run_jobs, run_model
+from pcdet_memslidar.experiments.site_classical import choose_settings
+from pcdet_memslidar.experiments.site_report import render_site_report
+from pcdet_memslidar.geometry.background import BackgroundModel
 from pcdet_memslidar.grid import fitted_range, xy_cell_multiple
 from pcdet_memslidar.io.importer import import_frames, list_frames
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
+from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.monitor.detect import DetectOptions, detect, resolve_format
 from pcdet_memslidar.monitor.tracker import TrackerConfig
 from pcdet_memslidar.runtime.common import create_logger
+from pcdet_memslidar.runtime.eval_loop import prediction_folder
+from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.train import final_checkpoint
 from pcdet_memslidar.sim.composite import estimate_background_mount, read_background
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.site import BUNDLED_SITES, Background, Site, get_domain, load_site
-from pcdet_memslidar.sim.writer import simulate_dataset
+from pcdet_memslidar.sim.writer import simulate_dataset, simulate_empty_recording
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
 MODEL_CONFIG = CONFIG_DIR / "memslidar_models" / "second_person.yaml"
-SITE_CONFIG = "site.yaml"
+SITE_DETECTORS = ("background", "second", "second_background")  # the module docstring's three
+SITE_CONFIGS = {"second": "site.yaml", "second_background": "site_background.yaml", "background": "site_classical.yaml"}
+FIGURE_DETECTOR = "second_background"  # the detector the figure shows (where it was trained)
+BACKGROUND_FILE = "background.npz"
+EMPTY_RECORDING_FRAMES = 20  # frames of a scene site's simulated empty recording (8 s at the paper's 0.4 s)
+DISTRACTORS = (1, 3)  # distractors per frame of the held-out distractor sets
+TRAIN_DISTRACTORS = (0, 2)  # distractors per training frame, unless the site file sets `distractors`
+PEOPLE_SETS = ("test", "pairs", "test_distractors")  # held-out composited sets AP is measured on
+NOBODY_SETS = ("empty", "distractors")  # held-out sets without people: every detection is a false alarm
 PERSON_MARGIN_M = 0.4  # the grid reaches this far beyond the walkable area (half a person)
 Z_RANGES = {"paper": (-0.5, 2.5)}  # z of the shipped paper grid; the profiles' z is theirs
 # Augmentations a site detector goes without: pasted people (gt_sampling) keep what they hide and may stand inside
@@ -115,9 +145,21 @@ def site_extent(site: Site) -> tuple[float, float, float, float]:
     return float(low[0]), float(low[1]), float(high[0]), float(high[1])
 
 
-def site_config(site: Site, data_path: Path, mix: dict) -> dict:
-    """The site's detector config (YAML-ready): the shipped SECOND with the site's grid in the paper setting and in
-    every profile (grid.fitted_range), trained on the sources of `mix` (SitePlan.mix) and tested on `test`."""
+def learn_background(site: Site) -> BackgroundModel:
+    """The background model (geometry.background) of the frames of site.background, on the site's scan pattern."""
+    pattern = get_pattern(site.pattern)
+    directions, _, _ = pattern.pulses()
+    frames = [frame.points[frame.returned, :3] for frame in read_background(site.background, site.pattern)]
+    return BackgroundModel.learn(directions, frames, site.viewpoints[0].mount, np.radians(pattern.angle_spacing_deg))
+
+
+def site_config(site: Site, data_path: Path, mix: dict, background: Path, detector: str = "second",
+                classical: dict | None = None) -> dict:
+    """The config (YAML-ready) of one of SITE_DETECTORS: the shipped SECOND with the site's grid in the paper
+    setting and in every profile (grid.fitted_range), trained on the sources of `mix` (SitePlan.mix), tested on
+    `test`; every detector names the site's `background` model (detect watches the sensor with it); the background
+    detectors take background_depth as a point feature; `background` is MODEL.NAME BackgroundSubtraction with the
+    settings `classical`."""
     base = cfg_from_yaml_file(MODEL_CONFIG)
     extent, profiles = site_extent(site), {}
     for name in ("paper", *base.PROFILES):
@@ -129,13 +171,35 @@ def site_config(site: Site, data_path: Path, mix: dict) -> dict:
     overrides = {name: {"DATA_CONFIG": {"POINT_CLOUD_RANGE": profiles[name], "MIX": {"TOTAL": mix["TOTAL"]}}}
                  for name in base.PROFILES}
     overrides["quick"]["OPTIMIZATION"] = SITE_QUICK_OPTIMIZATION
-    return {
-        "_BASE_CONFIG_": str(MODEL_CONFIG),
-        "DATA_CONFIG": {"DATA_PATH": str(data_path), "POINT_CLOUD_RANGE": profiles["paper"], "MIX": mix,
-                        "TEST_SOURCE": {"NAME": "test", "COUNT": None},
-                        "DATA_AUGMENTOR": {"DISABLE_AUG_LIST": SITE_DISABLED_AUGMENTATIONS}},
-        "PROFILES": overrides,
-    }
+    data_config = {"DATA_PATH": str(data_path), "POINT_CLOUD_RANGE": profiles["paper"], "MIX": mix,
+                   "TEST_SOURCE": {"NAME": "test", "COUNT": None}, "BACKGROUND_MODEL": str(background),
+                   "DATA_AUGMENTOR": {"DISABLE_AUG_LIST": SITE_DISABLED_AUGMENTATIONS}}
+    config = {"_BASE_CONFIG_": str(MODEL_CONFIG), "DATA_CONFIG": data_config, "PROFILES": overrides}
+    if detector in ("background", "second_background"):
+        features = ["x", "y", "z", "intensity", BACKGROUND_FEATURE]
+        data_config["POINT_FEATURE_ENCODING"] = {"used_feature_list": features, "src_feature_list": features}
+    if detector == "background":
+        config["MODEL"] = {"NAME": "BackgroundSubtraction", "BACKGROUND_SUBTRACTION": classical or {}}
+    return config
+
+
+def write_site_config(out: Path, detector: str, config: dict, set_cfgs, profile: str):
+    """Write <out>/SITE_CONFIGS[detector] and return it loaded (with set_cfgs and the profile)."""
+    path = out / SITE_CONFIGS[detector]
+    write_text(path, yaml.safe_dump(config, sort_keys=False))
+    return load_config(path, set_cfgs, profile=profile)
+
+
+def test_sets(plan: SitePlan, test: Site) -> dict[str, tuple[Site, int, int]]:
+    """{name: (site, frames, seed)} of the composited held-out sets (stage 2): people, people in pairs (at least
+    two, half of them walking side by side, the others as close as 0.5 m), people beside distractors, distractors
+    and nobody."""
+    pairs = dataclasses.replace(test, people=(2, max(3, test.people[1])), group_probability=0.5, min_separation_m=0.5)
+    beside = dataclasses.replace(test, distractors=DISTRACTORS)
+    alone = dataclasses.replace(test, people=(0, 0), distractors=DISTRACTORS)
+    side_sets = max(1, plan.test_frames // 2)
+    return {"test": (test, plan.test_frames, plan.seed + 1), "pairs": (pairs, side_sets, plan.seed + 3),
+            "test_distractors": (beside, side_sets, plan.seed + 4), "distractors": (alone, side_sets, plan.seed + 5)}
 
 
 def write_empty_frames(site: Site, held: tuple[int, int], out: Path) -> int:
@@ -148,17 +212,20 @@ def write_empty_frames(site: Site, held: tuple[int, int], out: Path) -> int:
     return len(frames)
 
 
-def false_alarms(cfg, checkpoint: Path, empty: Path, out: Path, period_s: float, logger) -> dict:
-    """`memslidar detect` over the empty frames: {frames, detections_per_frame (at the tracker's min_score),
-    confirmed_tracks, tracks_per_minute, max_score}."""
-    summary = detect(cfg, checkpoint, DetectOptions(src=empty, out=out, fmt="kitti", frame_period_s=period_s),
+def detections_on(cfg, checkpoint: Path | None, frames: Path, out: Path, period_s: float, logger) -> dict:
+    """`memslidar detect` over a folder of frames in which no one is: {frames, seconds (of recording),
+    detections_per_frame (at the tracker's min_score), detections_per_minute, confirmed_tracks, tracks_per_minute,
+    max_score, frames_per_s (the whole detect loop, this process's threads)}."""
+    summary = detect(cfg, checkpoint, DetectOptions(src=frames, out=out, fmt="kitti", frame_period_s=period_s),
                      logger)
     scores = [detection["score"] for line in (out / "detections.jsonl").read_text().splitlines()
               for detection in json.loads(line)["detections"]]
     minutes = summary["frames"] * period_s / 60
-    return {"frames": summary["frames"], "detections_per_frame": summary["detections"] / summary["frames"],
-            "confirmed_tracks": summary["tracks"], "tracks_per_minute": summary["tracks"] / minutes,
-            "max_score": max(scores, default=None), "detect_folder": str(out)}
+    return {"frames": summary["frames"], "seconds": summary["frames"] * period_s,
+            "detections_per_frame": summary["detections"] / summary["frames"],
+            "detections_per_minute": summary["detections"] / minutes, "confirmed_tracks": summary["tracks"],
+            "tracks_per_minute": summary["tracks"] / minutes, "max_score": max(scores, default=None),
+            "frames_per_s": summary["frames_per_s"], "detect_folder": str(out)}
 
 
 def bundled_checkpoints(reproduce_out: Path) -> dict[str, tuple[EasyDict, Path]]:
@@ -174,102 +241,143 @@ def bundled_checkpoints(reproduce_out: Path) -> dict[str, tuple[EasyDict, Path]]
     return models
 
 
-def plot_site_frames(path: Path, data: Path, out: Path, predictions: Path, point_cloud_range) -> Path:
-    """The figure: the last held-out empty frame with the site model's detections (left), and the composited
-    held-out frame with the most people with its ground truth and predictions (right)."""
-    empty, test = KittiLayout(data / "empty"), KittiLayout(data / "test")
-    empty_id = empty.frame_ids()[-1]
-    detections = read_label_folder(out / "detect_empty" / "site" / "labels", with_score=True)[empty_id]
+def plot_site_frames(path: Path, data: Path, out: Path, detector: str, predictions: Path, point_cloud_range) -> Path:
+    """The figure of `detector`: the last held-out empty frame with its detections (left), the last distractor frame
+    (middle), and the composited held-out frame with the most people with its ground truth and predictions
+    (right)."""
+    panels = []
+    for name in ("empty", "distractors"):
+        layout = KittiLayout(data / name)
+        frame_id = layout.frame_ids()[-1]
+        detections = read_label_folder(out / "detect" / name / detector / "labels", with_score=True)
+        boxes = detections[sorted(detections)[-1]]["boxes_lidar"] if detections else np.zeros((0, 7))
+        what = "held-out empty frame" if name == "empty" else "distractors, nobody"
+        panels.append((f"{what} {frame_id}: {len(boxes)} detections (green)", read_points(layout.velodyne(frame_id)),
+                       np.zeros((0, 7)), boxes))
+    test = KittiLayout(data / "test")
     gt = read_label_folder(test.training / "label_2", with_score=False)
     test_id = max(sorted(gt), key=lambda frame_id: len(gt[frame_id]["name"]))
     predicted = read_label_folder(predictions, with_score=True)[test_id]
     shown = predicted["boxes_lidar"][predicted["score"] >= TRACKER_MIN_SCORE]
-    return plot_frames(path, [
-        (f"held-out empty frame {empty_id}: {len(detections['name'])} detections (green)",
-         read_points(empty.velodyne(empty_id)), np.zeros((0, 7)), detections["boxes_lidar"]),
-        (f"people composited into held-out frame {test_id}: ground truth (blue), detections >= "
-         f"{TRACKER_MIN_SCORE} (green)", read_points(test.velodyne(test_id)), gt[test_id]["boxes_lidar"], shown)],
-        point_cloud_range)
+    panels.append((f"people composited into held-out frame {test_id}: ground truth (blue), detections >= "
+                   f"{TRACKER_MIN_SCORE} (green)", read_points(test.velodyne(test_id)), gt[test_id]["boxes_lidar"],
+                   shown))
+    return plot_frames(path, panels, point_cloud_range)
+
+
+def held_out_scores(cfgs: dict, runs: dict, data: Path, out: Path, logger) -> dict:
+    """{detector: {set: metrics with 'interval' {AP3D_R40, APBEV_R40}}} on every composited held-out set with people
+    (the first, `test`, from the runs; the others predicted here), intervals by bootstrap over each set's frames."""
+    scores = {}
+    for detector, cfg in cfgs.items():
+        run_dir = out / "models" / detector
+        checkpoint = final_checkpoint(cfg, run_dir) if is_learned(cfg.MODEL) else None
+        scores[detector] = {}
+        for name in PEOPLE_SETS:
+            if name == "test":
+                pred_dir = out / runs[detector]["predictions"]
+            else:
+                set_cfg = copy.deepcopy(cfg)
+                set_cfg.DATA_CONFIG.TEST_SOURCE = EasyDict({"NAME": name, "COUNT": None})
+                predict(set_cfg, checkpoint, run_dir / f"eval_{name}", logger)
+                pred_dir = prediction_folder(run_dir / f"eval_{name}") / name
+            gt_dir = data / name / "training" / "label_2"
+            entry = score_run(gt_dir, pred_dir)["metrics"]
+            gt = read_label_folder(gt_dir, with_score=False)
+            matches = frame_matches([gt[frame] for frame in sorted(gt)], frame_predictions(pred_dir, sorted(gt)))
+            entry["interval"] = {f"AP{kind}_R40": list(ap_interval([matches[kind]])) for kind in ("3D", "BEV")}
+            entry["predictions"] = str(pred_dir)
+            scores[detector][name] = entry
+    return scores
 
 
 def train_site(site_file: Path, out: Path, plan: SitePlan, profile: str = "quick", compare: Path | None = None,
-               command: str = "", set_cfgs: list[str] | None = None) -> dict:
-    """Stages 1-6 of the module docstring; returns the results dict written to out/results.json."""
+               command: str = "", set_cfgs: list[str] | None = None,
+               detectors: tuple[str, ...] = SITE_DETECTORS) -> dict:
+    """Stages 1-6 of the module docstring for `detectors` (a subset of SITE_DETECTORS); returns the results dict
+    written to out/results.json."""
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
-    site = load_site(site_file, estimate_background_mount)
-    mix = plan.mix()
-    sim = simulated_site(plan.sim_site) if plan.sim_share else None
-    train, test, held = split_background(site, plan.holdout)  # 1.
+    unknown = sorted(set(detectors) - set(SITE_DETECTORS))
+    if unknown or not detectors:
+        raise ConfigError(f"--detectors {' '.join(detectors)}: choose from {', '.join(SITE_DETECTORS)}")
     out.mkdir(parents=True, exist_ok=True)
+    site = simulate_empty_recording(load_site(site_file, estimate_background_mount), EMPTY_RECORDING_FRAMES,
+                                    out / "empty_recording", plan.seed)
+    mix = plan.mix()
+    compared = bundled_checkpoints(compare) if compare else {}  # refused before any work when missing
+    sim = simulated_site(plan.sim_site) if plan.sim_share else None
+    if sim is not None and set(detectors) - {"second"}:
+        raise ConfigError("--sim-share: simulated frames have no site background, which the background detectors "
+                          "read; train them without it, or pass --detectors second")
+    train, test, held = split_background(site, plan.holdout)  # 1.
+    if train.distractors == (0, 0):
+        train = dataclasses.replace(train, distractors=TRAIN_DISTRACTORS)
     logger = create_logger(out / "site_log.txt")
     clock = StageClock(logger)
-    data = out / "data"
+    data, background_path = out / "data", out / BACKGROUND_FILE
+    with clock("background"):
+        background = learn_background(train)
+        background.save(background_path)
     with clock("data"):  # 2.
-        counts = {**source_counts(EasyDict(mix)), "test": plan.test_frames}
-        parts = {"train": (train, plan.seed), "sim": (sim, plan.seed + 2), "test": (test, plan.seed + 1)}
-        for name, count in counts.items():
-            simulate_dataset(parts[name][0], count, data / name, seed=parts[name][1], workers=available_cores())
+        parts = {"train": (train, source_counts(EasyDict(mix))["train"], plan.seed),
+                 **test_sets(plan, test)}
+        if sim is not None:
+            parts["sim"] = (sim, source_counts(EasyDict(mix))["sim"], plan.seed + 2)
+        for name, (part, count, seed) in parts.items():
+            simulate_dataset(part, count, data / name, seed=seed, workers=available_cores())
             create_domain_infos(Source(name, data / name, count))
         if not KittiLayout(data / "empty").frame_ids():
             write_empty_frames(site, held, data / "empty")
-    config_path = out / SITE_CONFIG  # 3.
-    write_text(config_path, yaml.safe_dump(site_config(site, data, mix), sort_keys=False))
-    cfg = load_config(config_path, set_cfgs, profile=profile)
-    run_dir = out / "model"
+    configs, classical, trials = {}, None, []  # 3.
+    if "background" in detectors:
+        with clock("classical settings"):
+            probe = write_site_config(out, "background", site_config(site, data, mix, background_path, "background"),
+                                      set_cfgs, profile)
+            classical, trials = choose_settings(probe, logger)
+    for detector in detectors:
+        configs[detector] = write_site_config(
+            out, detector, site_config(site, data, mix, background_path, detector, classical), set_cfgs, profile)
     with clock("train and test"):  # 4.
-        run = run_model({"model": "site", "seed": plan.seed, "cfg": cfg, "run_dir": run_dir,
-                         "gt_dir": data / "test" / "training" / "label_2", "out": out, "workers": 0,
-                         "threads": available_cores(), "every_epoch": True})
+        jobs = [{"model": detector, "seed": plan.seed, "cfg": cfg, "run_dir": out / "models" / detector,
+                 "gt_dir": data / "test" / "training" / "label_2", "out": out, "workers": 0, "every_epoch": True,
+                 "threads": 1 if len([d for d in detectors if d != "background"]) > 1 else available_cores()}
+                for detector, cfg in configs.items()]
+        learned = [job for job in jobs if is_learned(job["cfg"].MODEL)]
+        runs = dict(zip([job["model"] for job in learned], run_jobs(learned, min(len(learned), 2), logger)))
+        for job in jobs:
+            if job["model"] not in runs:
+                runs[job["model"]] = run_model({**job, "threads": available_cores()})
+        scores = held_out_scores(configs, runs, data, out, logger)
     period = get_pattern(site.pattern).frame_period_s
+    checkpoints = {detector: final_checkpoint(cfg, out / "models" / detector) if is_learned(cfg.MODEL) else None
+                   for detector, cfg in configs.items()}
     with clock("false alarms"):  # 5.
-        alarms = {"site": false_alarms(cfg, final_checkpoint(cfg, run_dir), data / "empty",
-                                       out / "detect_empty" / "site", period, logger)}
-        for model, (model_cfg, checkpoint) in (bundled_checkpoints(compare) if compare else {}).items():
-            alarms[model] = false_alarms(model_cfg, checkpoint, data / "empty", out / "detect_empty" / model,
-                                         period, logger)
+        alarms = {name: {} for name in NOBODY_SETS}
+        for name in NOBODY_SETS:
+            for model, (model_cfg, checkpoint) in {**{d: (configs[d], checkpoints[d]) for d in configs},
+                                                   **compared}.items():
+                alarms[name][model] = detections_on(model_cfg, checkpoint, data / name, out / "detect" / name / model,
+                                                    period, logger)
     results = {"site": site.name, "site_file": str(site_file), "profile": profile, "command": command,
                "date": started.isoformat(timespec="seconds"), "environment": environment(),
                "plan": dataclasses.asdict(plan), "background": site.background.recording,
+               "background_model": {"file": str(background_path), "frames": background.frames,
+                                    "margin_m": background.margin_m, "margin_per_m": background.margin_per_m,
+                                    "no_background_share": float(np.isinf(background.range).mean())},
                "held_out_frames": list(held), "mount": dataclasses.asdict(site.viewpoints[0].mount),
-               "point_cloud_range": list(cfg.DATA_CONFIG.POINT_CLOUD_RANGE), "config": str(config_path),
-               "checkpoint": str(final_checkpoint(cfg, run_dir)), "test": run["metrics"], "curve": run["curve"],
+               "point_cloud_range": list(next(iter(configs.values())).DATA_CONFIG.POINT_CLOUD_RANGE),
+               "detectors": list(detectors), "configs": {d: str(out / SITE_CONFIGS[d]) for d in detectors},
+               "checkpoints": {d: checkpoints[d] and str(checkpoints[d]) for d in detectors},
+               "classical": {"settings": classical, "trials": trials},
+               "scores": scores, "curves": {d: runs[d]["curve"] for d in detectors},
+               "ms_per_frame": {d: runs[d]["metrics"]["ms_per_frame"] for d in detectors},
                "false_alarms": alarms, "min_score": TRACKER_MIN_SCORE, "frame_period_s": period}
+    shown = FIGURE_DETECTOR if FIGURE_DETECTOR in scores else detectors[0]
     with clock("figures"):  # 6.
-        results["figure"] = str(plot_site_frames(out / "site_detections.png", data, out, out / run["predictions"],
-                                                 cfg.DATA_CONFIG.POINT_CLOUD_RANGE))
+        results["figure"] = str(plot_site_frames(out / "site_detections.png", data, out, shown,
+                                                 Path(scores[shown]["test"]["predictions"]),
+                                                 results["point_cloud_range"]))
     results["stages"], results["wall_seconds"] = clock.seconds, time.perf_counter() - wall_start
     report_path, _ = write_report(results, out, render_site_report)
-    logger.info(f"{HEADLINE} {run['metrics'][HEADLINE]:.4f}; report: {report_path}")
+    logger.info(f"report: {report_path}")
     return json_safe(results)
-
-
-def render_site_report(results: dict) -> str:
-    """report.md of a `site train` run."""
-    alarms = results["false_alarms"]
-    rows = "\n".join(f"| {model} | {entry['frames']} | {entry['detections_per_frame']:.2f} | "
-                     f"{entry['confirmed_tracks']} | {entry['tracks_per_minute']:.1f} | "
-                     f"{'-' if entry['max_score'] is None else format(entry['max_score'], '.2f')} |"
-                     for model, entry in alarms.items())
-    metrics, machine = results["test"], results["environment"]["machine"]
-    lines = [
-        f"# Site detector: {results['site']}", "",
-        f"{results['date']}, {machine['cpu']} ({machine['cores']} cores); command: `{results['command']}`; "
-        f"profile {results['profile']}; wall time {results['wall_seconds'] / 60:.1f} min.", "",
-        f"Background: `{results['background']}`; frames {results['held_out_frames'][0]} to "
-        f"{results['held_out_frames'][1] - 1} held out (never trained on). Mount {results['mount']}. "
-        f"Grid (POINT_CLOUD_RANGE) {results['point_cloud_range']}.", "",
-        "## False alarms on the held-out empty frames", "",
-        f"Nobody is in these frames: every detection at score >= {results['min_score']} (the tracker's min_score) "
-        f"is a false alarm. They span {alarms['site']['frames'] * results['frame_period_s']:.2f} s of the recording: "
-        "tracks per minute extrapolate from that.", "",
-        "| model | frames | detections / frame | confirmed tracks | tracks / minute | highest score |",
-        "|---|---|---|---|---|---|", rows, "",
-        "## People composited into the held-out frames", "",
-        f"AP 3D at IoU 0.5 (R40): **{metrics['AP3D_R40']:.4f}**; AP BEV (R40) {metrics['APBEV_R40']:.4f}; "
-        f"AP 3D (R11) {metrics['AP3D_R11']:.4f}.", "",
-        f"![held-out frame]({Path(results['figure']).name})", "",
-        "## Detect on new recordings of the site", "",
-        f"    memslidar detect --cfg {results['config']} --profile {results['profile']} --ckpt "
-        f"{results['checkpoint']} --src NEW_RECORDING --mount {results['mount']['height']},"
-        f"{results['mount']['tilt_deg']},{results['mount']['roll_deg']} --zones ZONES.yaml --out OUT", ""]
-    return "\n".join(lines)

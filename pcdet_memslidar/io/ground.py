@@ -4,7 +4,8 @@ The mount comes from the user (height, tilt) or from the ground plane, the lowes
 shelves and machines lie above the floor, and a static sensor may see only a little of the floor behind them.
 RANSAC finds the largest level plane, then the largest one below it, and so on; the lowest is refined by least
 squares on its inliers, and its normal and distance give height, tilt and roll (yaw is not observable from the
-ground and stays 0).
+ground and stays 0). A plane that is not a floor (too steep, too few points on it, many points below it) is
+refused with a ValueError naming the fix, --mount.
 """
 from __future__ import annotations
 
@@ -13,6 +14,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from pcdet_memslidar.geometry.mount import Mount
+
+# A floor as the sensor sees it. A ceiling or wall mount looks down at most ~60 deg (steeper, the floor fills the view
+# and little else is seen), so a plane tilted beyond 70 deg is a wall or a slope; sensors are mounted upright, so a
+# plane rolled beyond 30 deg is a wall, a ramp or a strip cut through one, not the floor.
+MAX_TILT_DEG = 70.0
+MAX_ROLL_DEG = 30.0
+# Points that must lie on the floor: the bundled office recording sees its floor only near the back wall, 0.8 % of
+# the returns of its first frames, so the share is low; the other checks refuse what a low minimum lets through.
+MIN_GROUND_POINTS = 100
+MIN_GROUND_SHARE = 0.005
+# Under a floor lie only noise, pits, drains and reflections (0.08 % of the returns of the bundled recording lie
+# 0.25 m or more below its floor); more than 2 % of the points that far below the plane are a lower surface: the plane
+# is a desk top or shelf seen above a floor that did not show as a plane.
+BELOW_M = 0.25
+MAX_BELOW_SHARE = 0.02
+FIX = "pass --mount H,TILT[,ROLL] (metres, degrees) instead"
 
 
 @dataclass(frozen=True)
@@ -55,16 +72,17 @@ def mount_from_plane(normal: np.ndarray, distance: float) -> Mount:
     return Mount(height=float(distance), tilt_deg=float(tilt), roll_deg=float(roll))
 
 
-def estimate_ground(points: np.ndarray, distance_threshold: float = 0.05, max_tilt_deg: float = 70.0,
-                    max_planes: int = 10, iterations: int = 5000, seed: int = 0, min_inliers: int = 100,
-                    min_share: float = 0.005, max_skew_deg: float = 10.0) -> GroundEstimate:
+def estimate_ground(points: np.ndarray, distance_threshold: float = 0.05, max_tilt_deg: float = MAX_TILT_DEG,
+                    max_planes: int = 10, iterations: int = 5000, seed: int = 0, min_inliers: int = MIN_GROUND_POINTS,
+                    min_share: float = MIN_GROUND_SHARE, max_skew_deg: float = 10.0) -> GroundEstimate:
     """Estimate the mount from (N, >=3) points in the sensor frame [m]: the ground is the lowest large level plane.
 
     A plane counts if its normal is within `max_tilt_deg` [deg] of the sensor's z axis, the sensor lies more than
     `distance_threshold` [m] above it, and at least `min_inliers` points and `min_share` (a fraction) of all points
     lie within `distance_threshold` of it. RANSAC (`iterations` random planes, seeded) finds the counting plane with
     the most inliers, then the one with the most among the points below it (parallel within `max_skew_deg` [deg]),
-    up to `max_planes` planes; the lowest is refined by least squares. Raises ValueError if no plane counts.
+    up to `max_planes` planes; the lowest is refined by least squares. Raises ValueError naming --mount if no plane
+    counts or the refined one is not a floor (_check_floor).
     """
     xyz = np.asarray(points, dtype=np.float64)[:, :3]
     rng = np.random.default_rng(seed)
@@ -80,9 +98,25 @@ def estimate_ground(points: np.ndarray, distance_threshold: float = 0.05, max_ti
         lowest = plane, remaining[inliers]
         remaining = remaining[remaining @ plane[:3] + plane[3] < -distance_threshold]
     if lowest is None:
-        raise ValueError(f"no ground plane found: no plane below the sensor within {max_tilt_deg} deg of level holds "
-                         f"{need} points; pass --mount HEIGHT,TILT instead")
-    return _refine(lowest[1], distance_threshold)
+        raise ValueError(f"no ground plane found: no plane below the sensor within {max_tilt_deg:g} deg of level "
+                         f"holds {need} points; {FIX}")
+    estimate = _refine(lowest[1], distance_threshold)
+    _check_floor(estimate, xyz, max_tilt_deg)
+    return estimate
+
+
+def _check_floor(estimate: GroundEstimate, points: np.ndarray, max_tilt_deg: float) -> None:
+    """ValueError naming --mount if the refined plane is beyond max_tilt_deg [deg] / MAX_ROLL_DEG of level (a wall,
+    or a strip of one that RANSAC took for a level plane) or more than MAX_BELOW_SHARE of the (N, 3) points [m] lie
+    BELOW_M or more below it (a desk top above the floor)."""
+    mount = estimate.mount
+    if abs(mount.tilt_deg) > max_tilt_deg or abs(mount.roll_deg) > MAX_ROLL_DEG:
+        raise ValueError(f"the plane found is not a floor: tilt {mount.tilt_deg:.0f} deg, roll {mount.roll_deg:.0f} "
+                         f"deg, beyond the {max_tilt_deg:g} / {MAX_ROLL_DEG:g} deg of a floor (a wall?); {FIX}")
+    below = float(np.mean(points @ np.array(estimate.plane[:3]) + estimate.plane[3] < -BELOW_M))
+    if below > MAX_BELOW_SHARE:
+        raise ValueError(f"the plane found {mount.height:.2f} m below the sensor is not the floor: {100 * below:.1f} % "
+                         f"of the points lie more than {BELOW_M:g} m below it (a desk top or shelf?); {FIX}")
 
 
 def _level_plane(points: np.ndarray, above: np.ndarray | None, distance_threshold: float, max_tilt_deg: float,

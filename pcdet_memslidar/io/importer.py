@@ -104,14 +104,20 @@ def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention
 
 
 def choose_mount(frames: list[SourceFrame], mount: Mount | None, estimate: bool) -> tuple[Mount | None, dict]:
-    """The mount to normalise with and its report entry; estimated from the first GROUND_FRAMES frames."""
+    """The mount to normalise with and its report entry; estimated from the first GROUND_FRAMES frames
+    (DataFormatError naming them and --mount where they show no floor)."""
     if mount is not None:
         return mount, {"source": "given", "height": mount.height, "tilt_deg": mount.tilt_deg,
                        "roll_deg": mount.roll_deg}
     if not estimate:
         return None, {"source": "none (clouds stored as they are: already in the ground frame)"}
-    points = np.concatenate([frame.load().points for frame in frames[:GROUND_FRAMES]])
-    estimate_ = ground.estimate_ground(points[:: max(1, len(points) // 200_000)])
+    used = frames[:GROUND_FRAMES]
+    points = np.concatenate([frame.load().points for frame in used])
+    try:
+        estimate_ = ground.estimate_ground(points[:: max(1, len(points) // 200_000)])
+    except ValueError as error:
+        where = used[0].name if len(used) == 1 else f"{used[0].name} to {used[-1].name}"
+        raise DataFormatError(where, f"--estimate-ground: {error}") from None
     return estimate_.mount, {"source": "estimated from the ground plane", **estimate_.as_dict()}
 
 

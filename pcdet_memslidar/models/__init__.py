@@ -3,6 +3,7 @@
 Public API:
     build_network(model_cfg, num_class, dataset) -> nn.Module    (model chosen by model_cfg.NAME)
     load_data_to_device(batch_dict, device) -> batch_dict          (numpy arrays -> tensors, in place)
+    is_learned(model_cfg) -> bool                                   (False: no weights, no training, no checkpoint)
     DETECTORS: NAME -> detector class; per-stage registries in models.detector
 """
 from __future__ import annotations
@@ -11,9 +12,10 @@ import numpy as np
 import torch
 
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.models.background_subtraction import BackgroundSubtraction
 from pcdet_memslidar.models.detector import CenterPoint, SECONDNet
 
-DETECTORS = {"SECONDNet": SECONDNet, "CenterPoint": CenterPoint}
+DETECTORS = {"SECONDNet": SECONDNet, "CenterPoint": CenterPoint, "BackgroundSubtraction": BackgroundSubtraction}
 _HOST_KEYS = {"frame_id", "metadata", "calib", "image_shape", "gt_names", "db_flag"}  # left as they are
 
 
@@ -23,6 +25,11 @@ def build_network(model_cfg, num_class: int, dataset) -> torch.nn.Module:
     if model_cfg.get("NAME") not in DETECTORS:
         raise ConfigError(f"MODEL.NAME is {model_cfg.get('NAME')!r}; this package provides {', '.join(DETECTORS)}")
     return DETECTORS[model_cfg.NAME](model_cfg=model_cfg, num_class=num_class, dataset=dataset)
+
+
+def is_learned(model_cfg) -> bool:
+    """Whether model_cfg.NAME's detector has weights to train (BackgroundSubtraction has none)."""
+    return getattr(DETECTORS.get(model_cfg.get("NAME")), "learned", True)
 
 
 def load_data_to_device(batch_dict: dict, device: torch.device | str) -> dict:

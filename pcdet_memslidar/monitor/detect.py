@@ -3,6 +3,8 @@ industrial safety).
 
     list the recording's frames (io.importer's readers: .bfpc, .pcd, .ply, .npy, .bin, or a KITTI-layout folder)
     -> the mount: given, estimated from the ground plane, or none (frames already in the ground frame)
+    -> per frame, with a config that names the site's background model (DATA_CONFIG.BACKGROUND_MODEL): is the
+       sensor still where it was? (monitor.background_watch: realigns a turned sensor, reports a changed site)
     -> per batch of frames: normalise to the ground frame, voxelise (the config's DATA_PROCESSOR), infer
     -> per frame, in time order: track (monitor.tracker), zones and events (monitor.zones)
     -> write labels/<frame>.txt (KITTI with scores), detections.jsonl and summary.json (and on request plots/ and
@@ -32,6 +34,7 @@ from pcdet_memslidar.io.importer import SourceFrame, check_time_unit, choose_mou
 from pcdet_memslidar.io.pointclouds import SUFFIXES, LoadedCloud, cloud_from_fields, read_bin_fields
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
+from pcdet_memslidar.monitor.background_watch import BackgroundWatch
 from pcdet_memslidar.monitor.plots import plot_tracks_frame
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
@@ -116,7 +119,7 @@ class FrameVoxeliser(DatasetTemplate):
 
     def __call__(self, points: np.ndarray, frame_id: str, point_times: np.ndarray | None = None) -> dict:
         """points (N, 4), and their time offsets (N,) [s] where the recording has them (the box step's drift)."""
-        frame = {"points": points, "frame_id": frame_id}
+        frame = {"points": self.point_features(points), "frame_id": frame_id}
         return self.prepare_data(frame if point_times is None else {**frame, "point_times": point_times})
 
 
@@ -143,7 +146,7 @@ class Monitor:
         return record, boxes, scores, ids
 
 
-def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.Logger | None = None,
+def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: logging.Logger | None = None,
            device: str | torch.device = "cpu") -> dict:
     """Run the detector of cfg / checkpoint over options.src and write options.out (module docstring); returns the
     summary (also in out/summary.json)."""
@@ -159,6 +162,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
     monitor = Monitor(TrackerConfig.from_block(cfg.get("TRACKER"), cfg.get("CFG_FILE", "the config")),
                       options.zones or [])
     voxeliser = FrameVoxeliser(cfg, logger)
+    watch = BackgroundWatch(voxeliser.background, logger) if voxeliser.background is not None else None
     model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger, options.precision)
     batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
     seconds, counts = Counter(), Counter()
@@ -168,7 +172,7 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
         bar = progress_bar(total=len(frames), desc="detect", unit="frame")
         for first in range(0, len(frames), batch_size):
             batch = frames[first:first + batch_size]
-            clouds, times = _read(batch, mount, seconds, counts)  # 1. read and normalise
+            clouds, times = _read(batch, mount, seconds, counts, watch)  # 1. read, normalise, align
             if torch.device(device).type == "cpu":
                 give_way()
             predictions = _infer(model, voxeliser, clouds, times, first, device, seconds, counts)  # 2. voxelise, infer
@@ -191,12 +195,13 @@ def detect(cfg, checkpoint: str | Path, options: DetectOptions, logger: logging.
                 bar.update()
         bar.close()
         wall = time.perf_counter() - started
-        summary = {"source": str(src), "format": fmt, "checkpoint": str(checkpoint),
+        summary = {"source": str(src), "format": fmt, "checkpoint": checkpoint and str(checkpoint),
                    "config": cfg.get("CFG_FILE"), "profile": cfg.get("PROFILE"), "mount": mount_entry,
                    "frames": len(frames), "frames_without_points": counts["empty"],
                    "frames_with_point_times": counts["timed"],
                    "frames_without_voxels": counts["no_voxels"], "dropped_invalid_points": counts["dropped"],
                    "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
+                   "background_events": watch.events if watch else None,
                    "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
                    "device": str(device), "torch_threads": torch.get_num_threads(), "batch_size": batch_size,
                    "precision": options.precision,
@@ -230,16 +235,18 @@ def _lap(seconds: Counter, stage: str, tick: float) -> float:
     return now
 
 
-def _read(batch: list[SourceFrame], mount: Mount | None, seconds: Counter, counts: Counter
-          ) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
-    """The batch's clouds (N, 4) in the ground frame, and their points' time offsets (N,) [s] where the format gives
-    their unit (else None); invalid points are counted (the readers drop them)."""
+def _read(batch: list[SourceFrame], mount: Mount | None, seconds: Counter, counts: Counter,
+          watch: BackgroundWatch | None = None) -> tuple[list[np.ndarray], list[np.ndarray | None]]:
+    """The batch's clouds (N, 4) in the ground frame (aligned to the site's background by `watch`), and their
+    points' time offsets (N,) [s] where the format gives their unit (else None); invalid points are counted (the
+    readers drop them)."""
     tick, clouds, times = time.perf_counter(), [], []
     for frame in batch:
         cloud = frame.load()
         counts["dropped"] += cloud.dropped
         counts["empty"] += len(cloud.points) == 0
-        clouds.append(cloud.points if mount is None else ground.normalise_points(cloud.points, mount))
+        points = cloud.points if mount is None else ground.normalise_points(cloud.points, mount)
+        clouds.append(points if watch is None else watch(frame.name, points))
         times.append(cloud.time_offsets())
         counts["timed"] += times[-1] is not None
     _lap(seconds, "read", tick)

@@ -68,7 +68,7 @@ def _subray_directions(directions: np.ndarray, divergence_rad: float) -> np.ndar
     return subrays / np.linalg.norm(subrays, axis=2, keepdims=True)
 
 
-def _cast(scene, rays: np.ndarray, threads: int):
+def cast_rays(scene, rays: np.ndarray, threads: int):
     """Cast rays (n, 6) [origin, direction] against an Open3D RaycastingScene; returns numpy t_hit (n,) float32,
     geometry ids (n,) uint32, primitive ids (n,) uint32, normals (n, 3) float32."""
     o3d = import_open3d()
@@ -133,7 +133,7 @@ def body_scene(bank: BodyBank, lod: str) -> BodyScene:
             posed_box[shape, :, part] = np.concatenate([posed.min(1), posed.max(1)], axis=1)
             reach[shape] = max(reach[shape], np.hypot(posed[..., 0], posed[..., 1]).max())
     material_start = np.cumsum([0] + [len(m) for m in materials[:-1]])
-    _cast(scene, np.array([[0.0, 0.0, -1.0, 0.0, 0.0, 1.0]]), 1)  # Open3D builds the BVH on the first cast: here,
+    cast_rays(scene, np.array([[0.0, 0.0, -1.0, 0.0, 0.0, 1.0]]), 1)  # Open3D builds the BVH on the first cast: here,
     # not in two threads casting at once
     walking = _union(np.stack([posed_box[:, :gait], np.roll(posed_box[:, :gait], -1, axis=1)]), axis=0)
     standing = np.broadcast_to(posed_box[:, gait:], walking.shape)
@@ -194,7 +194,7 @@ class Caster:
         vertices, triangles, reflectivity = scene.triangles()
         static_scene = o3d.t.geometry.RaycastingScene()
         static_scene.add_triangles(o3d.core.Tensor(vertices), o3d.core.Tensor(triangles))
-        t_hit, _, primitive, normal = _cast(
+        t_hit, _, primitive, normal = cast_rays(
             static_scene, np.column_stack([np.broadcast_to(self.origin, self.directions.shape), self.directions]),
             threads)
         hit = np.isfinite(t_hit)
@@ -202,7 +202,7 @@ class Caster:
         hit, normal, primitive = hit[:self.pulses], normal[:self.pulses], primitive[:self.pulses]
         self.static_cos = np.where(hit, np.abs(np.einsum("ij,ij->i", normal, self.pulse_directions)), 0.0)  # (P,)
         self.static_ray_reflectivity = np.where(hit, reflectivity[np.where(hit, primitive, 0)], 0.0)
-        self.static_edge_range = (self._edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
+        self.static_edge_range = (self.edge_range(self.static_range, np.arange(self.pulses)) if self.has_subrays
                                   else None)
 
     def cast_frame(self, people: list[Person], time_step_s: float = 0.0,
@@ -233,7 +233,7 @@ class Caster:
             self.bank.transforms.reshape(*self.bank.transforms.shape[:3], 12), bodies.body_box, bodies.part_box,
             bodies.rest_box, bodies.offset)
         start = time.perf_counter()
-        t_hit, hit_geometry, primitive, normal = _cast(bodies.scene, rays, self.threads)
+        t_hit, hit_geometry, primitive, normal = cast_rays(bodies.scene, rays, self.threads)
         cast_seconds = time.perf_counter() - start
         changed = np.zeros(p, dtype=bool)
         nearest_body_hits(pair, geometry, rays, t_hit, hit_geometry, primitive, normal, ray, person, p,
@@ -242,10 +242,10 @@ class Caster:
                           person_hit, unoccluded, changed)
         if self.has_subrays:
             changed = np.flatnonzero(changed)
-            edge_range[changed] = self._edge_range(ray_range, changed)
+            edge_range[changed] = self.edge_range(ray_range, changed)
         return FrameHits(ray_range[:p], cos, reflectivity, person_hit, edge_range, unoccluded, cast_seconds)
 
-    def _edge_range(self, ray_range: np.ndarray, pulse: np.ndarray) -> np.ndarray:
+    def edge_range(self, ray_range: np.ndarray, pulse: np.ndarray) -> np.ndarray:
         """(n,) range of a second surface inside the footprint of pulses `pulse` (n,), nan where the footprint
         sees one smooth surface. Opposite sub-rays on a smooth surface deviate symmetrically from the centre (a
         tilted plane spreads the footprint's ranges, it does not shift them); a pair that does not is an edge, and

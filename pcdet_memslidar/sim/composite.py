@@ -6,13 +6,16 @@ nothing). Per output frame:
    (.bfpc lists every pulse, with or without a return), or, for point-cloud files, each return along its own
    direction at the time of the site's scan-pattern pulse nearest to it, and the pattern's other pulses as pulses
    without a return;
-2. place people on the walkable floor, clear of what the background shows standing on it (`obstacle_cells`);
-3. cast each pulse at its own time against the people (sim/caster.py, with the real ranges as the static world):
-   a pulse whose ray hits a person nearer than its real return (or that had none) returns the person's hit
-   through the site's sensor physics (range noise, mixed pixels, dropout, intensity); the real return behind it
-   is gone (the person's shadow);
+2. place the site's distractors (objects that are not people, sim/distractors.py), then people, on the walkable
+   floor, clear of what the background shows standing on it (`obstacle_cells`); people also walk around the
+   distractors;
+3. cast each pulse at its own time against the people (sim/caster.py, with the real ranges as the static world)
+   and against the distractors: a pulse whose nearest hit is a person or a distractor nearer than its real return
+   (or that had none) returns that hit through the site's sensor physics (range noise, mixed pixels, dropout,
+   intensity); the real return behind it is gone (the shadow), and so is a person's hit behind a distractor;
 4. every other pulse keeps its real return bit for bit (normalised to the ground frame as `memslidar import` does);
-5. boxes and metadata as for simulated frames; the metadata names the background frame.
+5. boxes (people only) and metadata as for simulated frames; the metadata names the background frame and lists the
+   distractors.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import dataclasses
 import functools
 import hashlib
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +39,7 @@ from pcdet_memslidar.io.cvat import natural_key
 from pcdet_memslidar.io.pointclouds import SUFFIXES, read_point_cloud
 from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
 from pcdet_memslidar.sim.caster import Caster, FrameHits
+from pcdet_memslidar.sim.distractors import Distractor, cast_distractors, footprints, frame_distractors
 from pcdet_memslidar.sim.frame import Frame, frame_rng, points_of_returns
 from pcdet_memslidar.sim.labels import label_people
 from pcdet_memslidar.sim.pattern import PATTERNS, ScanPattern, get_pattern
@@ -48,6 +53,8 @@ OBSTACLE_HEIGHT_M = (0.2, 1.8)  # returns between these heights above the floor 
 OBSTACLE_MIN_RETURNS = 2  # over all background frames: a lone noisy return does not block a cell
 WALK_HEADINGS = tuple(k * np.pi / 4 for k in range(8))  # people cross a background site in any direction
 MAX_MATCH_SPACINGS = 0.5  # median angle from a return to its matched pulse, in pulse spacings, of a pattern's own data
+REAL_RETURN = -1  # Composite.person of a real return (and FrameHits.person of a pulse whose nearest hit is real)
+DISTRACTOR_RETURN = -2  # Composite.person of a return from a distractor (and FrameHits.person of its pulses)
 
 
 @dataclass(frozen=True)
@@ -235,9 +242,10 @@ def background_world(site: Site) -> BackgroundWorld:
 
 @dataclass
 class Composite:
-    """A background frame with people cast into it: points (N, 4) float32 [x, y, z, intensity] in the ground frame
-    and time_offset (N,) float32 [s], in pulse order; pulse (N,) the pulse of each point; person (N,) the person a
-    point is on (-1: a real return); hits: the caster's nearest hits of every pulse."""
+    """A background frame with people and distractors cast into it: points (N, 4) float32 [x, y, z, intensity] in
+    the ground frame and time_offset (N,) float32 [s], in pulse order; pulse (N,) the pulse of each point; person (N,)
+    the person a point is on (REAL_RETURN -1: a real return, DISTRACTOR_RETURN -2: a distractor's); hits: the nearest
+    hits of every pulse (the caster's, with person DISTRACTOR_RETURN where a distractor is nearest)."""
 
     points: np.ndarray
     time_offset: np.ndarray
@@ -247,52 +255,80 @@ class Composite:
 
     @property
     def hidden(self) -> np.ndarray:
-        """Pulses whose nearest hit is a person (their real return, if any, is gone)."""
-        return np.flatnonzero(self.hits.person >= 0)
+        """Pulses whose nearest hit is a person or a distractor (their real return, if any, is gone)."""
+        return np.flatnonzero(self.hits.person != REAL_RETURN)
+
+    def counts(self, people: int) -> tuple[np.ndarray, np.ndarray]:
+        """(people,) returned points of each person and (people,) pulses whose nearest hit is that person (before
+        dropout): what label_people takes."""
+        return (np.bincount(self.person[self.person >= 0], minlength=people),
+                np.bincount(self.hits.person[self.hits.person >= 0], minlength=people))
+
+
+def _nearest_of_distractors(hits: FrameHits, caster: Caster, distractors: Sequence[Distractor]) -> FrameHits:
+    """`hits` where a distractor is nearer than the real return and any person: its range, cosine, reflectivity,
+    person DISTRACTOR_RETURN, and the edge range of its sub-rays against the distractors and the real returns."""
+    ray_range, cos, reflectivity = cast_distractors(distractors, caster.origin, caster.directions, caster.threads)
+    p = caster.pulses
+    nearer = ray_range[:p] < hits.range
+    edge_range = hits.edge_range
+    if edge_range is not None:
+        edge_range = edge_range.copy()
+        edge_range[nearer] = caster.edge_range(np.minimum(caster.static_range, ray_range), np.flatnonzero(nearer))
+    return dataclasses.replace(
+        hits, range=np.where(nearer, ray_range[:p], hits.range),
+        cos_incidence=np.where(nearer, cos[:p], hits.cos_incidence),
+        reflectivity=np.where(nearer, reflectivity[:p], hits.reflectivity),
+        person=np.where(nearer, DISTRACTOR_RETURN, hits.person), edge_range=edge_range)
 
 
 def composite_pulses(background: BackgroundFrame, caster: Caster, people: list[Person], sensor: SensorModel,
                      rng: np.random.Generator, mount: Mount, time_step_s: float = 0.0,
-                     phase_steps: int | None = None) -> Composite:
-    """Cast `people` into one background frame (caster: built on its pulses and real ranges); steps 3 and 4 of the
-    module docstring."""
-    # cast every pulse at its own time; pulses whose person hit is nearer than the real return change
+                     phase_steps: int | None = None, distractors: Sequence[Distractor] = ()) -> Composite:
+    """Cast `people` and `distractors` into one background frame (caster: built on its pulses and real ranges);
+    steps 3 and 4 of the module docstring."""
+    # cast every pulse at its own time; pulses whose person or distractor hit is nearer than the real return change
     hits = caster.cast_frame(people, time_step_s, phase_steps)
-    changed = np.flatnonzero(hits.person >= 0)
+    if distractors:
+        hits = _nearest_of_distractors(hits, caster, distractors)
+    changed = np.flatnonzero(hits.person != REAL_RETURN)
     edge = None if hits.edge_range is None else hits.edge_range[changed]
     pulse, measured, intensity = sensor.returns(hits.range[changed], hits.cos_incidence[changed],
                                                 hits.reflectivity[changed], rng, edge)
-    person_pulse = changed[pulse]
-    person_points, _ = points_of_returns(caster.origin, caster.directions, caster.time_offset, person_pulse,
-                                         measured, intensity)
+    cast_pulse = changed[pulse]
+    cast_points, _ = points_of_returns(caster.origin, caster.directions, caster.time_offset, cast_pulse, measured,
+                                       intensity)
     # every other pulse keeps its real return, normalised as an import would
-    kept = np.flatnonzero(background.returned & (hits.person < 0))
-    pulses = np.concatenate([kept, person_pulse])
+    kept = np.flatnonzero(background.returned & (hits.person == REAL_RETURN))
+    pulses = np.concatenate([kept, cast_pulse])
     order = np.argsort(pulses, kind="stable")
-    points = np.concatenate([ground.normalise_points(background.points[kept], mount), person_points])[order]
+    points = np.concatenate([ground.normalise_points(background.points[kept], mount), cast_points])[order]
     return Composite(points, background.time_offset[pulses[order]].astype(np.float32), pulses[order],
-                     np.concatenate([np.full(len(kept), -1), hits.person[person_pulse]])[order], hits)
+                     np.concatenate([np.full(len(kept), REAL_RETURN), hits.person[cast_pulse]])[order], hits)
 
 
 def composite_frame(site: Site, seed: int, index: int, threads: int = 0, bank: BodyBank | None = None) -> Frame:
     """Frame `index` of a background site with dataset seed `seed`: background frame index % (its frames), people
-    drawn from the frame's own generator (sim.frame.frame_rng)."""
+    drawn from the frame's own generator (sim.frame.frame_rng), distractors from theirs (frame_distractors)."""
     rng, bank = frame_rng(seed, index), bank or load_body_bank()
     world = background_world(site)
     k = index % len(world.frames)
     background, caster, period = world.frames[k], world.caster(k, threads), world.pattern.frame_period_s
-    people = sample_people(rng, site, world.scene, world.mount, world.pattern.hfov_deg, world.pattern.vfov_deg,
-                           period, bank)
+    # distractors first, then people who walk around them
+    distractors = frame_distractors(site, seed, index, world.scene.obstacles)
+    scene = dataclasses.replace(world.scene, obstacles=np.concatenate([world.scene.obstacles, footprints(distractors)]))
+    people = sample_people(rng, site, scene, world.mount, world.pattern.hfov_deg, world.pattern.vfov_deg, period, bank)
     result = composite_pulses(background, caster, people, world.sensor, rng, world.mount, site.time_step_s,
-                              site.phase_steps)
-    # labels from the simulator state
-    returned = np.bincount(result.person[result.person >= 0], minlength=len(people))
-    hit = np.bincount(result.hits.person[result.hidden], minlength=len(people))
-    boxes, names, records = label_people(bank, site.lod, people, period / 2, returned, hit, result.hits.unoccluded)
+                              site.phase_steps, distractors)
+    # labels from the simulator state (distractors get none)
+    boxes, names, records = label_people(bank, site.lod, people, period / 2, *result.counts(len(people)),
+                                         result.hits.unoccluded)
     metadata = dict(
         domain=site.name, scene="background", background=background.source, background_time_s=background.time_s,
         frame_index=index, seed=seed, package_version=pcdet_memslidar.__version__,
         mount=dataclasses.asdict(world.mount), pattern=world.pattern.name, sensor=site.sensor, frame_period_s=period,
         label_time_s=period / 2, num_pulses=caster.pulses, num_points=len(result.points),
         background_returns_hidden=int(background.returned[result.hidden].sum()), people=records)
+    if site.distractors[1] > 0:  # frames of sites without distractors stay as they were
+        metadata["distractors"] = [distractor.record() for distractor in distractors]
     return Frame(result.points, result.time_offset, boxes, names, metadata)

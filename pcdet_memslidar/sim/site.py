@@ -13,6 +13,7 @@ empty site, into which simulated people are ray-cast (sim/composite.py). The bun
     background: {recording: empty_hall.bfpc}        # instead of a scene: a real recording of the empty site
     walkable: [[2, -4], [9, -4], [9, 4], [2, 4]]    # polygon on the floor [m] people stay inside
     people: {count: [1, 8], behaviours: {walk: 0.5, stand: 0.5}, vest_probability: 0.6}
+    distractors: {count: [0, 2], kinds: [box, pallet]}   # with a background: objects that are not people
     frames: 230                                     # frames `memslidar simulate --site` makes by default
 """
 from __future__ import annotations
@@ -59,6 +60,10 @@ class Background:
     frames: tuple[int, int] | None = None
 
 
+# Site fields left out of Site.to_dict at these values: the fingerprints of sites made before the fields existed stay
+_LEFT_OUT_WHEN_DEFAULT = dict(walkable=None, background=None, distractors=(0, 0), distractor_kinds=None)
+
+
 @dataclass(frozen=True)
 class Site:
     """Everything that decides what a data set's frames look like.
@@ -70,7 +75,9 @@ class Site:
     frame; vest_probability: chance of a high-visibility vest; default_frames: frames made unless told otherwise;
     lod: body mesh detail level; time_step_s: pulse-time quantisation of the people's motion (0 = every pulse sees
     its own instant); walkable: polygon ((x, y), ...) [m] on the floor that people's paths stay inside (None:
-    anywhere in view); background: a recording of the empty site instead of a scene.
+    anywhere in view); background: a recording of the empty site instead of a scene; distractors: (min, max) objects
+    that are not people (sim/distractors.py) composited into each frame of a background site, of distractor_kinds
+    (names of distractors.KINDS, None = all).
     """
 
     name: str
@@ -89,26 +96,28 @@ class Site:
     time_step_s: float = 0.0
     walkable: tuple[tuple[float, float], ...] | None = None
     background: Background | None = None
+    distractors: tuple[int, int] = (0, 0)
+    distractor_kinds: tuple[str, ...] | None = None
 
     def to_dict(self) -> dict:
-        """JSON-ready form (used for the fingerprint and the metadata); the keys of a site without a walkable area
-        or a background are those of the bundled domains before site files, so their fingerprints stay."""
+        """JSON-ready form (used for the fingerprint and the metadata); the keys of a site without a walkable area,
+        a background or distractors are those of the bundled domains before site files, so their fingerprints stay."""
         settings = dataclasses.asdict(self)
         return {key: value for key, value in settings.items()
-                if not (key in ("walkable", "background") and value is None)}
+                if not (key in _LEFT_OUT_WHEN_DEFAULT and value == _LEFT_OUT_WHEN_DEFAULT[key])}
 
 
 # ---------------------------------------------------------------------------------------------------------------
 # reading a site file
 
-_KEYS = dict(top=("name", "sensor", "mount", "scene", "viewpoints", "background", "walkable", "people", "frames",
-                  "simulation"),
+_KEYS = dict(top=("name", "sensor", "mount", "scene", "viewpoints", "background", "walkable", "people",
+                  "distractors", "frames", "simulation"),
              sensor=("pattern", "physics"), mount=("height", "tilt_deg", "roll_deg", "yaw_deg"),
              viewpoint=("scene", "mount"), scene=("base", "primitives", "walk_headings_deg", "walk_x_max"),
              background=("recording", "frames"),
              people=("count", "shapes", "behaviours", "group_probability", "min_separation_m", "vest_probability",
                      "phase_steps"),
-             simulation=("lod", "time_step_s"),
+             distractors=("count", "kinds"), simulation=("lod", "time_step_s"),
              pattern=tuple(field.name for field in dataclasses.fields(ScanPattern) if field.name != "name"))
 
 
@@ -288,6 +297,22 @@ def _people(file: _SiteFile, node, key: str) -> dict:
         if "vest_probability" in fields else 0.0)
 
 
+def _distractors(file: _SiteFile, node, key: str) -> dict:
+    from pcdet_memslidar.sim.distractors import KINDS  # here: sim/distractors.py imports this module
+
+    fields = file.mapping(node, key, _KEYS["distractors"])
+    if "count" not in fields:
+        raise file.error(node, key, "give the distractors per frame as count: [min, max], e.g. {count: [0, 2]}")
+    count = file.numbers(fields["count"], f"{key}.count", 2, 0, 20, integer=True)
+    if count[0] > count[1]:
+        raise file.error(fields["count"], f"{key}.count", f"{list(count)}: give [min, max] with min <= max")
+    kinds = fields.get("kinds")
+    if kinds is not None and (not isinstance(kinds, yaml.SequenceNode) or not kinds.value):
+        raise file.error(kinds, f"{key}.kinds", f"give a list of kinds, e.g. [box, pallet] (known: {', '.join(KINDS)})")
+    return dict(distractors=count, distractor_kinds=None if kinds is None else tuple(
+        file.choice(item, f"{key}.kinds", tuple(KINDS)) for item in kinds.value))
+
+
 def _walkable(file: _SiteFile, node, key: str) -> tuple[tuple[float, float], ...]:
     if not isinstance(node, yaml.SequenceNode) or len(node.value) < 3:
         raise file.error(node, key, "expected a polygon of at least 3 [x, y] corners in metres on the floor, e.g. "
@@ -365,6 +390,10 @@ def load_site(path: str | Path, estimate_mount=None) -> Site:
         scene = None if background else _scene(file, top["scene"], "scene", name)
         viewpoints = [Viewpoint(scene, mount)]
     walkable = _walkable(file, top["walkable"], "walkable") if "walkable" in top else None
+    if "distractors" in top and background is None:
+        raise file.error(top["distractors"], "distractors", "only a background site composites distractors into its "
+                                                            "recording; in a scene, add such objects to its primitives")
+    distractors = _distractors(file, top["distractors"], "distractors") if "distractors" in top else {}
     simulation = file.mapping(top["simulation"], "simulation", _KEYS["simulation"]) if "simulation" in top else {}
     site = Site(
         name=name, pattern=pattern, sensor=physics, viewpoints=tuple(viewpoints),
@@ -373,7 +402,7 @@ def load_site(path: str | Path, estimate_mount=None) -> Site:
         lod=file.choice(simulation["lod"], "simulation.lod", LODS) if "lod" in simulation else "fine",
         time_step_s=file.number(simulation["time_step_s"], "simulation.time_step_s", 0, 10)
         if "time_step_s" in simulation else 0.0,
-        walkable=walkable, background=background)
+        walkable=walkable, background=background, **distractors)
     if walkable is not None:
         check_walkable_in_view(site, lambda message: file.error(top["walkable"], "walkable", message))
     return site
@@ -388,17 +417,22 @@ def check_walkable_in_view(site: Site, error, min_share: float = 0.5) -> None:
     grid = np.stack(np.meshgrid(np.linspace(low[0], high[0], 60), np.linspace(low[1], high[1], 60)), -1).reshape(-1, 2)
     inside = grid[points_in_polygon(grid, corners)]
     for viewpoint in site.viewpoints:
-        local = viewpoint.mount.ground_to_sensor(np.c_[inside, np.ones(len(inside))])
-        azimuth = np.degrees(np.arctan2(local[:, 1], local[:, 0]))
-        elevation = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
-        seen = (local[:, 0] > 0) & (np.abs(azimuth) <= pattern.hfov_deg / 2) & (
-            np.abs(elevation) <= pattern.vfov_deg / 2)
+        seen = in_field_of_view(np.c_[inside, np.ones(len(inside))], viewpoint.mount, pattern)
         share = seen.mean() if len(seen) else 0.0
         if share < min_share:
             raise error(f"only {100 * share:.0f} % of the walkable area lies in the sensor's field of view (azimuth "
                         f"+-{pattern.hfov_deg / 2:g} deg, elevation +-{pattern.vfov_deg / 2:g} deg at 1 m above the "
                         f"floor, mount {viewpoint.mount.height:g} m / {viewpoint.mount.tilt_deg:g} deg): at least "
                         f"{100 * min_share:.0f} % must be; move the polygon in front of the sensor (x forward, y left)")
+
+
+def in_field_of_view(points: np.ndarray, mount: Mount, pattern: ScanPattern) -> np.ndarray:
+    """(N,) bool: points (N, 3) [m] (ground frame) in front of the sensor within the pattern's azimuth and elevation
+    extent."""
+    local = mount.ground_to_sensor(points)
+    azimuth = np.degrees(np.arctan2(local[:, 1], local[:, 0]))
+    elevation = np.degrees(np.arctan2(local[:, 2], np.hypot(local[:, 0], local[:, 1])))
+    return (local[:, 0] > 0) & (np.abs(azimuth) <= pattern.hfov_deg / 2) & (np.abs(elevation) <= pattern.vfov_deg / 2)
 
 
 @functools.lru_cache(maxsize=None)

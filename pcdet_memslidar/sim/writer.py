@@ -21,9 +21,11 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
+import numpy as np
+
 import pcdet_memslidar
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
-from pcdet_memslidar.io.kitti import read_label
+from pcdet_memslidar.io.kitti import read_label, write_points
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
 from pcdet_memslidar.sim.bodies import BANK_PATH
 from pcdet_memslidar.sim.composite import composite_frame, recording_sha256
@@ -31,13 +33,14 @@ from pcdet_memslidar.sim.frame import Frame, simulate_frame, simulate_sequence
 from pcdet_memslidar.sim.memory import keep_freed_memory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
-from pcdet_memslidar.sim.site import Site
+from pcdet_memslidar.sim.site import Background, Site, Viewpoint
 from pcdet_memslidar.utils.atomic import atomic_dir, write_text
 from pcdet_memslidar.utils.processes import bounded_map, exit_with_parent
 from pcdet_memslidar.utils.progress import progress_bar
 
 SETTINGS_FILE = "simulation.json"
 SEQUENCE_COMMAND = "memslidar simulate --sequence"  # the owner of the sequence folders it writes
+EMPTY_RECORDING_COMMAND = "memslidar site train"  # the owner of a scene site's simulated empty recording
 FRAME_THREADS = 2  # frames made at a time by one process
 MAX_FRAMES = 10 ** 6  # frame ids have six digits
 
@@ -211,3 +214,24 @@ def simulate_sequence_dataset(site: Site, length: int, out: str | Path, seed: in
             bar.update()
         write_split(layout)
     return dict(written=length, points=int(points), people=people, fingerprint=settings["fingerprint"])
+
+
+def simulate_empty_recording(site: Site, frames: int, out: str | Path, seed: int = 0) -> Site:
+    """What a scene site's sensor records with nobody there: `frames` frames of `site` without people, written as a
+    folder of .bin frames in the sensor frame (out/<index>.bin, as a recording's point clouds), whole into a
+    temporary folder that replaces `out`, or read back when `out` holds them already. Returns the site with that
+    folder as its background (a background site: `site train` composites people into it)."""
+    if site.background is not None:
+        return site
+    if len(site.viewpoints) != 1:
+        raise ConfigError(f"site '{site.name}' has {len(site.viewpoints)} viewpoints: a site's empty recording is "
+                          f"made from one mount; give it `scene` and `mount`")
+    out, mount = Path(out), site.viewpoints[0].mount
+    names = [f"{index:06d}.bin" for index in range(frames)]
+    if not (out.is_dir() and sorted(path.name for path in out.glob("*.bin")) == names):
+        empty = dataclasses.replace(site, people=(0, 0))
+        with atomic_dir(out, EMPTY_RECORDING_COMMAND) as tmp:
+            for index, name in enumerate(names):
+                points = simulate_frame(empty, seed, index).points
+                write_points(tmp / name, np.c_[mount.ground_to_sensor(points[:, :3]), points[:, 3]])
+    return dataclasses.replace(site, viewpoints=(Viewpoint(None, mount),), background=Background(str(out)))

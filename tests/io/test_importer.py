@@ -65,6 +65,23 @@ def test_cli_estimates_the_ground_and_refuses_to_overwrite(tmp_path, scan_room, 
     assert cli.main(args) == 2 and "--overwrite" in capsys.readouterr().err
 
 
+def test_cli_refuses_to_estimate_the_ground_without_a_floor_in_view(tmp_path, capsys):
+    """Five frames of a level sensor's upper half of view, a wall 6 m ahead and no floor: exit 1, one error line
+    naming the frames the estimate used and --mount (then the command's usual note), nothing written."""
+    rng = np.random.default_rng(0)
+    src, out = tmp_path / "clouds", tmp_path / "real"
+    src.mkdir()
+    for i in range(6):
+        wall = np.column_stack([np.full(3000, 6.0), rng.uniform(-3.0, 3.0, 3000), rng.uniform(0.0, 2.0, 3000)])
+        np.save(src / f"frame_{i}.npy", np.column_stack([wall + rng.normal(0.0, 0.01, wall.shape), np.ones(3000)]))
+    code, error = _import(capsys, src, out, "--estimate-ground")
+    assert code == 1 and not out.exists()
+    line, note = error.splitlines()
+    assert line.startswith("error: frame_0.npy to frame_4.npy: --estimate-ground: the plane found is not a floor")
+    assert line.endswith("pass --mount H,TILT[,ROLL] (metres, degrees) instead")
+    assert note == f"(nothing was written to {out})"
+
+
 def test_corrupt_gzip_and_truncated_protobuf_write_nothing(tmp_path, real_recording, capsys):
     data = real_recording.read_bytes()
     corrupt = tmp_path / "corrupt.bfpc"

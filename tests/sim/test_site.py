@@ -13,7 +13,7 @@ from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.geometry.polygon import points_in_polygon
 from pcdet_memslidar.sim.composite import read_background
 from pcdet_memslidar.sim.scenes import MATERIALS, SceneSpec, get_scene
-from pcdet_memslidar.sim.site import BUNDLED_SITES, SITES_DIR, get_domain, load_site
+from pcdet_memslidar.sim.site import BUNDLED_SITES, get_domain, load_site
 from pcdet_memslidar.sim.writer import simulate_dataset
 
 # sha256 of json.dumps(preset.to_dict(), sort_keys=True) of the Python presets that the bundled site files replaced
@@ -28,16 +28,6 @@ RECORDING = Path(__file__).parents[2] / "pcdet_memslidar" / "assets" / "blickfel
 def test_bundled_site_files_give_the_presets_they_replaced(name):
     settings = json.dumps(get_domain(name).to_dict(), sort_keys=True)
     assert hashlib.sha256(settings.encode()).hexdigest() == PRESET_SHA256[name]
-
-
-def test_a_site_file_and_its_domain_write_the_same_bytes(tmp_path):
-    for out, args in ((tmp_path / "domain", ["--domain", "real"]),
-                      (tmp_path / "site", ["--site", str(SITES_DIR / "real.yaml")])):
-        assert main(["simulate", *args, "--frames", "2", "--seed", "3", "--workers", "1", "--out", str(out)]) == 0
-    files = sorted(p.relative_to(tmp_path / "domain") for p in (tmp_path / "domain").rglob("*") if p.is_file())
-    assert len(files) == 2 + 2 * 5 + 1  # ImageSets, 5 files per frame, simulation.json
-    for file in files:
-        assert (tmp_path / "domain" / file).read_bytes() == (tmp_path / "site" / file).read_bytes(), file
 
 
 def write(tmp_path, text: str) -> Path:
@@ -89,6 +79,26 @@ def test_a_scene_spec_builds_on_a_bundled_scene():
     assert np.array_equal(more.obstacles[-1], [4.5, 4.5, 5.5, 5.5])
 
 
+ROOM = f"""\
+name: room
+sensor: {{pattern: cube1_2020}}
+mount: {{height: 1.6, tilt_deg: 0}}
+background: {{recording: {RECORDING}}}
+walkable: [[2, -3], [8, -3], [8, 1], [2, 1]]
+"""
+
+
+def test_a_background_site_reads_its_distractors_and_leaves_them_out_of_its_settings_when_it_has_none(tmp_path):
+    plain = load_site(write(tmp_path, ROOM))
+    assert plain.distractors == (0, 0) and plain.distractor_kinds is None
+    site = load_site(write(tmp_path, ROOM + "distractors: {count: [1, 3], kinds: [pallet, pole]}\n"))
+    assert site.distractors == (1, 3) and site.distractor_kinds == ("pallet", "pole")
+    settings = site.to_dict()
+    assert settings.pop("distractors") == (1, 3) and settings.pop("distractor_kinds") == ("pallet", "pole")
+    assert settings == plain.to_dict()  # without distractors: the keys (and fingerprints) of before
+    assert load_site(write(tmp_path, ROOM + "distractors: {count: [0, 2]}\n")).distractor_kinds is None
+
+
 @pytest.mark.parametrize("text, line, message", [
     (HALL.replace("tilt_deg: 12", "tilt_dg: 12"), 3, "mount.tilt_dg: unknown key; did you mean 'tilt_deg'?"),
     (HALL.replace("people:", "peple:"), 12, "peple: unknown key; did you mean 'people'?"),
@@ -101,6 +111,13 @@ def test_a_scene_spec_builds_on_a_bundled_scene():
      "only 0 % of the walkable area lies in the sensor's field of view"),
     (HALL.replace("pattern: cube1_paper", "pattern: cube2"), 2, "sensor.pattern: unknown value 'cube2'"),
     (HALL + "background: {recording: nowhere.bfpc}\n", 1, "give exactly one of scene"),
+    (HALL + "distractors: {count: [0, 2]}\n", 14, "distractors: only a background site composites distractors"),
+    (ROOM + "distractors: {count: [3, 1]}\n", 6, "distractors.count: [3, 1]: give [min, max] with min <= max"),
+    (ROOM + "distractors: {kinds: [box]}\n", 6, "distractors: give the distractors per frame as count: [min, max]"),
+    (ROOM + "distractors: {count: [0, 2], kind: [box]}\n", 6, "distractors.kind: unknown key; did you mean 'kinds'?"),
+    (ROOM + "distractors: {count: [0, 2], kinds: [box, palet]}\n", 6,
+     "distractors.kinds: unknown value 'palet'; did you mean 'pallet'?"),
+    (ROOM + "distractors: {count: [0, 2], kinds: box}\n", 6, "distractors.kinds: give a list of kinds"),
 ])
 def test_bad_site_files_are_refused_naming_file_line_key_and_fix(tmp_path, text, line, message):
     path = write(tmp_path, text)
