@@ -1,13 +1,15 @@
 """The whole M1-M4 reproduction with the smoke profile: data, infos, four trainings, evaluation, figures, report.
 
 One run (module fixture) is checked for complete tables and figures and for numbers that equal what the evaluator
-gives on the saved predictions, both through `memslidar eval --json` and from the in-memory detections.
+gives on the saved predictions, both through `memslidar eval --json` and from the in-memory detections; the evaluator
+itself gives the exact AP of known predictions on the same test set, and the counts are those of the label files.
 """
 import contextlib
 import io
 import json
 import logging
 import pickle
+import re
 
 import pytest
 
@@ -17,6 +19,9 @@ from pcdet_memslidar.evaluation.folders import read_label_folder
 from pcdet_memslidar.experiments.report import table2, table3
 from pcdet_memslidar.experiments.reproduce import MODELS, RUNS, model_config, reproduce
 from pcdet_memslidar.experiments.runs import train_detector
+from pcdet_memslidar.io.kitti import CLASS_NAME
+from pcdet_memslidar.runtime.eval_loop import split_config
+from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
@@ -38,20 +43,62 @@ def evaluator_json(gt_dir, pred_dir) -> dict:
     return json.loads(stdout.getvalue())
 
 
-def test_results_equal_the_evaluators_json(smoke):
+def person_lines(path) -> list[list[str]]:
+    """The fields of the person lines of a KITTI label file."""
+    return [line.split() for line in path.read_text().splitlines() if line.split()[:1] == [CLASS_NAME]]
+
+
+def known_predictions(gt_dir, pred_dir) -> tuple[int, int]:
+    """Prediction files made from the ground-truth label text: the people of the first half of the frames as labelled
+    (score 0.9), the others moved 50 m sideways (camera x; score 0.5), where no labelled box is. Returns (people kept,
+    people)."""
+    pred_dir.mkdir()
+    frames = sorted(gt_dir.glob("*.txt"))
+    kept = people = 0
+    for index, path in enumerate(frames):
+        lines = []
+        for fields in person_lines(path):
+            people += 1
+            if index < len(frames) // 2:
+                kept += 1
+                lines.append(" ".join(fields + ["0.9"]))
+            else:
+                lines.append(" ".join(fields[:11] + [f"{float(fields[11]) + 50.0:.2f}"] + fields[12:] + ["0.5"]))
+        (pred_dir / path.name).write_text("".join(line + "\n" for line in lines))
+    return kept, people
+
+
+def test_the_evaluator_gives_the_exact_ap_of_known_predictions_on_the_test_set(smoke, tmp_path):
+    """All true positives score above all false positives: precision 1 up to recall kept / people, then none, so
+    R40 = floor(40 kept / people) / 40 and R11 = (floor(10 kept / people) + 1) / 11, for 3D and BEV alike."""
+    _, data, _ = smoke
+    gt_dir = data / "industrial" / "training" / "label_2"
+    kept, people = known_predictions(gt_dir, tmp_path / "known")
+    assert 0 < kept < people
+    known = evaluator_json(gt_dir, tmp_path / "known")
+    r40, r11 = (40 * kept // people) / 40, (10 * kept // people + 1) / 11
+    assert [known[key] for key in ("AP3D_R40", "APBEV_R40", "AP3D_R11", "APBEV_R11")] == pytest.approx(
+        [r40, r40, r11, r11], abs=1e-12)
+    assert known["num_gt"]["all"] == known["num_dt"]["all"] == people
+
+
+def test_results_are_the_evaluators_on_the_saved_predictions_counted_from_the_label_files(smoke):
     out, data, _ = smoke
     stored = json.loads((out / "results.json").read_text())
     gt_dir = data / "industrial" / "training" / "label_2"
-    num_gt = sum(len(anno["name"]) for anno in read_label_folder(gt_dir, with_score=False).values())
+    people = sum(len(person_lines(path)) for path in gt_dir.glob("*.txt"))
     for model in RUNS:
         run = stored["models"][model]["runs"][0]
         pred_dir = out / run["predictions"]
-        assert len(list(pred_dir.glob("*.txt"))) == stored["data"]["industrial"]["frames"]  # one file per frame
-        evaluator = evaluator_json(gt_dir, pred_dir)
+        assert sorted(path.name for path in pred_dir.glob("*.txt")) == sorted(path.name for path in
+                                                                               gt_dir.glob("*.txt"))
+        detections = sum(len(person_lines(path)) for path in pred_dir.glob("*.txt"))
+        assert run["num_gt"]["all"] == people > 0 and run["num_dt"]["all"] == detections, model
+        evaluator = evaluator_json(gt_dir, pred_dir)  # exact on known predictions (the test above)
         for key, value in evaluator.items():
             if key.startswith("AP"):
                 assert run["metrics"][key] == value, (model, key)
-        assert run["num_gt"] == evaluator["num_gt"] and run["num_gt"]["all"] == num_gt > 0
+        assert run["num_gt"] == evaluator["num_gt"] and run["num_dt"] == evaluator["num_dt"]
         assert stored["models"][model]["mean"]["AP3D_R40"] == run["metrics"]["AP3D_R40"]
         assert run["metrics"]["ms_per_frame"] > 0
 
@@ -118,9 +165,20 @@ def test_second_run_reuses_data_and_models(smoke):
     assert checkpoint.stat().st_mtime_ns == before
 
 
-def test_every_run_records_its_convergence_curve(smoke):
-    _, _, results = smoke
+def test_every_run_records_its_epoch_time_and_the_val_ap_of_its_checkpoint(smoke, tmp_path):
+    """The epoch's minutes lie between the training loop's own epoch time (its log; the curve's clock also holds the
+    first batch's loading and the checkpoint's saving) and the run's training time; the validation AP is that of the
+    epoch's checkpoint on the mix's val split, predicted again from the file (M3: both sources)."""
+    out, data, results = smoke
     for model in RUNS:
-        curve = results["models"][model]["runs"][0]["curve"]
+        run = results["models"][model]["runs"][0]
+        curve = run["curve"]
         assert [entry["epoch"] for entry in curve] == [1]
-        assert curve[0]["minutes"] > 0 and curve[0]["loss"] > 0 and 0 <= curve[0]["val_AP3D_R40"] <= 1
+        log = (out / "models" / model / "seed_0" / "log.txt").read_text()
+        epoch_seconds = float(re.search(r"epoch 1/1: loss \S+, ([\d.]+) s", log).group(1))
+        assert epoch_seconds - 0.1 <= 60 * curve[0]["minutes"] <= run["seconds"]["train"] + 0.03, model  # rounding
+    curve = results["models"]["M3"]["runs"][0]["curve"]
+    cfg = split_config(model_config("M3", "smoke", data), "val")
+    checkpoint = out / "models" / "M3" / "seed_0" / "ckpt" / "checkpoint_epoch_1.pth"
+    again = predict(cfg, checkpoint, tmp_path / "val", logging.getLogger("test_smoke"))
+    assert (curve[0]["val_AP3D_R40"], curve[0]["val_APBEV_R40"]) == (again["AP3D_R40"], again["APBEV_R40"])

@@ -1,5 +1,6 @@
-"""Statistics of the real recording against the values documented in pcdet_memslidar/assets/blickfeld/README.md, and the
-calibrated sensor preset against the recording it was fitted on."""
+"""Statistics of the real recording against the values documented in pcdet_memslidar/assets/blickfeld/README.md, the
+calibration against a hand-made recording of a known sensor, and the calibrated preset replaying the real scene."""
+import numpy as np
 import pytest
 
 from pcdet_memslidar.sim.recording_stats import calibrate_sensor, measure, pulse_arrays, recording_stats, replay
@@ -32,14 +33,57 @@ def test_measured_values_match_the_readme(real_bfpc):
     assert stats["range_max_m"] == pytest.approx(36.8, abs=0.1)
 
 
-def test_calibrated_preset_is_what_the_recording_gives(arrays):
-    sensor = get_sensor("calibrated")
-    fitted = calibrate_sensor(arrays, intensity_scale=sensor.intensity_scale)
-    for name in ("range_sigma_m", "range_sigma_per_m", "intensity_range_slope", "intensity_jitter",
-                 "power_threshold", "power_softness"):
-        assert fitted[name] == pytest.approx(getattr(sensor, name), rel=0.05), name
-    assert fitted["min_range_m"] == sensor.min_range_m
-    assert fitted["base_dropout"] == pytest.approx(sensor.base_dropout, abs=5e-4)
+HAND_MADE = dict(range_sigma_m=0.004, range_sigma_per_m=0.0006, intensity_range_slope=-0.6, intensity_jitter=0.08,
+                 intensity_scale=200.0, albedo=0.5, power_threshold=1e-4, power_softness=0.2)
+
+
+def hand_made_recording() -> dict:
+    """(100, 90) range_m and intensity arrays of a static scene seen by a known sensor (HAND_MADE), built so that each
+    fitted number has an exact answer:
+    - 4 x 20 always-returning pulses at mean ranges 1.25, 3, 7 and 15 m, each range alternating r e^+-delta over the
+      frames: sample standard deviation (ddof 1) range_sigma_m + range_sigma_per_m x mean range;
+    - their intensity on the law intensity_scale x albedo x (range / 5 m)^intensity_range_slope of the measured range,
+      times e^+-j in a pattern orthogonal to the range's: the log-log line exact, and every pulse's standard deviation
+      of log intensity intensity_jitter (j from jitter and the range's share of it);
+    - 9 pulses at constant ranges (57-88 m, outside the noise bins) that return in the first 10, 20, ..., 90 of 100
+      frames, at the received power where the logistic detection curve of power_threshold and power_softness (no
+      base dropout) gives exactly that fraction: the maximum-likelihood fit is the truth;
+    - one pulse that never returns (left out of everything)."""
+    sensor, frames = HAND_MADE, 100
+    scale = sensor["intensity_scale"] * sensor["albedo"]  # intensity of a return at 5 m
+    frame = np.arange(frames)
+    range_sign, intensity_sign = np.where(frame % 2 == 0, 1.0, -1.0), np.where(frame % 4 < 2, 1.0, -1.0)
+    stretch = np.sqrt(frames / (frames - 1))  # sample standard deviation of +-1 over the frames
+    ranges, intensity = [], []
+    for mean_range in (1.25, 3.0, 7.0, 15.0):
+        sigma = sensor["range_sigma_m"] + sensor["range_sigma_per_m"] * mean_range
+        delta = np.arctanh(sigma / (mean_range * stretch))  # r sinh(delta) x stretch = sigma, r cosh(delta) = mean
+        measured = mean_range / np.cosh(delta) * np.exp(delta * range_sign)
+        jitter = np.sqrt((sensor["intensity_jitter"] / stretch) ** 2 - (sensor["intensity_range_slope"] * delta) ** 2)
+        value = scale * (measured / 5.0) ** sensor["intensity_range_slope"] * np.exp(jitter * intensity_sign)
+        ranges += [measured] * 20
+        intensity += [value] * 20
+    for returns in range(10, 100, 10):
+        fraction = returns / frames
+        log_power = np.log(sensor["power_threshold"]) + sensor["power_softness"] * np.log(fraction / (1 - fraction))
+        distance = np.exp((np.log(sensor["albedo"]) - log_power) / 2.0)  # power = albedo / range^2
+        returned = frame < returns
+        ranges.append(np.where(returned, distance, np.nan))
+        intensity.append(np.where(returned, scale * (distance / 5.0) ** sensor["intensity_range_slope"], np.nan))
+    ranges.append(np.full(frames, np.nan))
+    intensity.append(np.full(frames, np.nan))
+    return dict(range_m=np.array(ranges).T, intensity=np.array(intensity).T)
+
+
+def test_calibration_recovers_the_sensor_of_a_hand_made_recording():
+    fitted = calibrate_sensor(hand_made_recording(), intensity_scale=HAND_MADE["intensity_scale"])
+    for name in ("range_sigma_m", "range_sigma_per_m", "intensity_range_slope", "intensity_jitter"):
+        assert fitted[name] == pytest.approx(HAND_MADE[name], rel=1e-9), name
+    assert fitted["min_range_m"] == 1.2  # the shortest return, 1.2453 m, floored to 0.1 m
+    assert fitted["base_dropout"] == pytest.approx(0.0, abs=1e-9)
+    # the likelihood fit stops at scipy's ftol on sqrt(2 x negative log-likelihood): to about 0.1 % here
+    assert fitted["power_threshold"] == pytest.approx(HAND_MADE["power_threshold"], rel=1e-4)
+    assert fitted["power_softness"] == pytest.approx(HAND_MADE["power_softness"], rel=3e-3)
 
 
 def test_replaying_the_scene_reproduces_the_recording(arrays):

@@ -1,12 +1,20 @@
-"""tools/thread_census.py: an elementwise op is never counted as differing, and one training step is censused."""
+"""tools/thread_census.py: an op whose bits depend on the thread count is counted as differing and an elementwise op
+is not, each op's result is kept; a training step on one thread against one differs nowhere."""
 import importlib.util
 import re
 import sys
+from collections import Counter
 from pathlib import Path
 
 import torch
 
 REPO = Path(__file__).resolve().parents[2]
+
+
+@torch.library.custom_op("thread_census_test::threads_in_use", mutates_args=())
+def threads_in_use(x: torch.Tensor) -> torch.Tensor:
+    """An op whose result is the thread count it runs on: different bits on one thread than on two."""
+    return torch.full_like(x, float(torch.get_num_threads()))
 
 
 def load_tool(monkeypatch):
@@ -18,29 +26,36 @@ def load_tool(monkeypatch):
     return tool
 
 
-def test_an_elementwise_op_gives_the_same_bits_and_the_ops_result_is_kept(monkeypatch):
+def test_an_op_that_depends_on_the_threads_differs_an_elementwise_op_does_not_and_each_result_is_kept(monkeypatch):
     tool = load_tool(monkeypatch)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         census = tool.ThreadCensus()
         values = torch.arange(100_000, dtype=torch.float32)  # above torch's grain: split between threads
+        counted = torch.zeros(4)
         with census:
             product = values.mul(3.0)
             values.add_(1.0)  # in place: applied once, not once per thread count
+            used = threads_in_use(counted)
     finally:
         torch.set_num_threads(threads)
-    assert not census.differ and sum(census.same.values()) == 2
+    assert census.differ == Counter({("thread_census_test.threads_in_use.default", ((4,),)): 1})
+    assert census.same == Counter({("aten.mul.Tensor", ((100_000,),)): 1, ("aten.add_.Tensor", ((100_000,),)): 1})
     assert product[7].item() == 21.0 and values[7].item() == 8.0
+    assert used.tolist() == [2.0] * 4  # the result of the caller's two threads, not of the one-thread repeat
 
 
-def test_a_training_step_is_censused(monkeypatch, capsys):
+def test_a_training_step_on_one_thread_against_one_differs_nowhere(monkeypatch, capsys):
+    """The same thread count gives the same bits (random ops are skipped): 0 differ and no table rows."""
     tool = load_tool(monkeypatch)
     threads = torch.get_num_threads()
     try:
-        assert tool.main(["--cfg", str(REPO / "cfgs/m3.yaml"), "--profile", "smoke", "--threads", "2"]) == 0
+        assert tool.main(["--cfg", str(REPO / "cfgs/m3.yaml"), "--profile", "smoke", "--threads", "1"]) == 0
     finally:
         torch.set_num_threads(threads)
-    first = capsys.readouterr().out.splitlines()[0]
-    differ, total = (int(n) for n in re.search(r"(\d+) of (\d+) op calls differ", first).groups())
-    assert total > 1000 and 0 <= differ < total
+    lines = capsys.readouterr().out.splitlines()
+    header = re.search(r"1 threads against 1: (\d+) of (\d+) op calls differ", lines[0])
+    differ, total = int(header.group(1)), int(header.group(2))
+    assert differ == 0 and total > 1000
+    assert lines[1:] == ["", "| calls | op | input shapes |", "|---|---|---|"]

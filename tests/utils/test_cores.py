@@ -1,5 +1,6 @@
 """Cores on a shared machine: the count of other processes' runnable threads, inference threads that give way to
 them and come back, and a short scheduler time slice."""
+import io
 import json
 import os
 import subprocess
@@ -22,8 +23,30 @@ def test_running_threads_reads_the_state_after_the_name_even_with_parentheses_in
     assert cores._running_threads(files + [tmp_path / "gone.stat"]) == 2  # 12 and 15 run; a thread that ended
 
 
-def test_runnable_elsewhere_is_a_count_and_zero_without_proc(monkeypatch):
-    assert cores.runnable_elsewhere() >= 0
+def fake_proc(monkeypatch, runnable: list[int], states: dict[str, str]) -> None:
+    """/proc as cores reads it: /proc/loadavg gives the runnable counts in turn, /proc/self/task the threads of
+    `states` {tid: state letter}."""
+    loadavg = iter(f"0.52 0.58 0.59 {count}/913 4242\n" for count in runnable)
+
+    def fake_open(path):
+        if path == "/proc/loadavg":
+            return io.StringIO(next(loadavg))
+        tid = path.split("/")[-2]
+        return io.StringIO(f"{tid} (pt_main_thread) {states[tid]} 1 {tid}")
+
+    monkeypatch.setattr(cores, "open", fake_open, raising=False)
+    monkeypatch.setattr(cores.os, "listdir", lambda path: list(states) if path == "/proc/self/task" else [])
+
+
+@pytest.mark.parametrize("runnable, expected", [([9, 3, 7, 12, 5], 5),  # less 2 own: 7 1 5 10 3, median 5
+                                                ([1, 1, 3, 2, 1], 0)])  # median -1: never below 0
+def test_runnable_elsewhere_is_the_median_runnable_count_less_this_processs_running_threads(monkeypatch, runnable,
+                                                                                             expected):
+    fake_proc(monkeypatch, runnable, {"100": "R", "101": "S", "102": "R"})
+    assert cores.runnable_elsewhere() == expected
+
+
+def test_runnable_elsewhere_is_zero_without_proc(monkeypatch):
     monkeypatch.setattr(cores.os, "listdir", lambda path: (_ for _ in ()).throw(FileNotFoundError(path)))
     assert cores.runnable_elsewhere() == 0
 
