@@ -37,6 +37,27 @@ def side_by_side(results: dict) -> list[str]:
     return _table(header, rows)
 
 
+def sites_table(runs: list[dict]) -> list[str]:
+    """One table over several `site train` runs (their results dicts): per site and detector the AP 3D R40 on each
+    held-out set with people, false alarms per frame without people, frames per second; a header line per run says
+    when, where and how it ran."""
+    header = ["site", "detector", "AP 3D R40, people", "people in pairs", "people beside distractors",
+              "empty: detections / frame", "distractors: detections / frame", "frames / s"]
+    rows, sources = [], []
+    for results in runs:
+        machine, alarms = results["environment"]["machine"], results["false_alarms"]
+        sources.append(f"- {results['site']}: {results['date']}, {machine['cpu']} ({machine['cores']} cores), "
+                       f"`{results['command']}`, {results['wall_seconds'] / 60:.1f} min")
+        for detector, scores in results["scores"].items():
+            rows.append([results["site"], NAMES.get(detector, detector),
+                         *(_ap(scores[name]) for name in ("test", "pairs", "test_distractors")),
+                         f"{alarms['empty'][detector]['detections_per_frame']:.2f} "
+                         f"({alarms['empty'][detector]['frames']} frames)",
+                         f"{alarms['distractors'][detector]['detections_per_frame']:.2f}",
+                         f"{alarms['distractors'][detector]['frames_per_s']:.1f}"])
+    return [*sources, "", *_table(header, rows)]
+
+
 def compared_models(results: dict) -> list[str]:
     """False alarms of every model (the site's and the bundled --compare ones) on the sets without people."""
     alarms = results["false_alarms"]
