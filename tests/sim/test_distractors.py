@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_composite import standing_person  # a test module beside this one (pytest puts its folder on sys.path)
 
 from pcdet_memslidar.geometry.polygon import points_in_polygon
 from pcdet_memslidar.io import ground
@@ -26,8 +27,6 @@ from pcdet_memslidar.sim.distractors import (
     sample_distractors,
 )
 from pcdet_memslidar.sim.labels import label_people
-from pcdet_memslidar.sim.motion import Trajectory
-from pcdet_memslidar.sim.people import Person
 from pcdet_memslidar.sim.sensor import get_sensor
 from pcdet_memslidar.sim.site import in_field_of_view, load_site
 
@@ -54,14 +53,6 @@ def on_distractor(points: np.ndarray, distractor: Distractor, tolerance: float =
     dx, dy, dz = distractor.size
     return ((np.abs(along) <= dx / 2 + tolerance) & (np.abs(across) <= dy / 2 + tolerance)
             & (points[:, 2] >= -tolerance) & (points[:, 2] <= dz + tolerance))
-
-
-def standing_person(x: float, y: float) -> Person:
-    times = np.arange(-0.1, 0.3, 0.02)
-    samples = np.zeros((5, len(times)))
-    samples[0], samples[1] = x, y
-    return Person(shape=5, trajectory=Trajectory(times, samples), reflectivity=np.full(4, 0.5), behaviour="stand",
-                  group=0, vest=False)
 
 
 @pytest.mark.parametrize("kind", KINDS)
