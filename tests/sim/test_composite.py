@@ -20,7 +20,6 @@ from pcdet_memslidar.sim.composite import (
     obstacle_cells,
     read_background,
 )
-from pcdet_memslidar.sim.motion import Trajectory
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.people import BODY_RADIUS_M, Person
 from pcdet_memslidar.sim.sensor import get_sensor
@@ -49,14 +48,6 @@ def wall_background() -> BackgroundFrame:
     return BackgroundFrame("wall#0", directions, time_offset, ranges, points, 0.0)
 
 
-def standing_person(x: float, y: float) -> Person:
-    times = np.arange(-0.1, 0.3, 0.02)
-    samples = np.zeros((5, len(times)))
-    samples[0], samples[1] = x, y
-    return Person(shape=5, trajectory=Trajectory(times, samples), reflectivity=np.full(4, 0.5), behaviour="stand",
-                  group=0, vest=False)
-
-
 def cast(background: BackgroundFrame, people: list[Person], ranges=None):
     caster = Caster(background.range if ranges is None else ranges, MOUNT, background.directions,
                     background.time_offset, get_pattern("cube1_2020").frame_period_s, load_body_bank(), lod="fine")
@@ -64,7 +55,7 @@ def cast(background: BackgroundFrame, people: list[Person], ranges=None):
 
 
 @pytest.fixture(scope="module")
-def wall_case():
+def wall_case(standing_person):
     background = wall_background()
     people = [standing_person(4.0, 0.0)]
     caster, result = cast(background, people)

@@ -6,7 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_composite import standing_person  # a test module beside this one (pytest puts its folder on sys.path)
 
 from pcdet_memslidar.geometry.polygon import points_in_polygon
 from pcdet_memslidar.io import ground
@@ -110,7 +109,7 @@ def test_a_distractor_nearer_than_a_real_return_replaces_it_exactly(room):
     assert np.any([on_distractor(result.points[cast, :3], d, 1e-3) for d in distractors], axis=0).all()
 
 
-def test_people_behind_a_forklift_lose_what_it_hides_and_one_unseen_gets_no_label(room):
+def test_people_behind_a_forklift_lose_what_it_hides_and_one_unseen_gets_no_label(room, standing_person):
     site, world = room
     background, caster = world.frames[0], world.caster(0, 1)
     people = [standing_person(7.2, -0.3), standing_person(7.2, -0.8)]  # behind the gap beside its cab, behind the cab
