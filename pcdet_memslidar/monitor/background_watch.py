@@ -6,7 +6,8 @@ Per frame, in time order:
 1. the frame's returns (ground frame), turned by the yaw found so far, are scored: their foreground share;
 2. MISMATCH_FRAMES frames in a row above MISMATCH_SHARE (the first frame of a run alone suffices: a run starts
    without people as often as not, and a turned sensor must not wait) look for a turn about the vertical that lays
-   the frame back onto the background (BackgroundModel.estimate_yaw, no labels);
+   the frame back onto the background (BackgroundModel.estimate_yaw, no labels), and again every MISMATCH_FRAMES
+   frames while the stretch lasts;
 3. if that turn brings the share below MISMATCH_SHARE, every frame from this one on is turned by it (the detections
    come out in the site's frame again) and a `sensor_turned` event says so; otherwise a `background_mismatch`
    event names the frames and detect warns once (the sensor moved, the site changed, or something stood close to
@@ -48,7 +49,7 @@ class BackgroundWatch:
             self._off.clear()
             return turn_about_vertical(points, self.yaw_deg)
         self._off.append(name)
-        if first or len(self._off) >= MISMATCH_FRAMES:
+        if first or len(self._off) % MISMATCH_FRAMES == 0:  # a search takes 0.2-0.4 s: once per MISMATCH_FRAMES
             yaw, after = self.model.estimate_yaw(turn_about_vertical(points, self.yaw_deg))
             if after <= MISMATCH_SHARE and yaw != 0.0:
                 self.yaw_deg += yaw
@@ -58,8 +59,9 @@ class BackgroundWatch:
                 self.logger.warning(f"frames {', '.join(self._off)}: the sensor looks turned by {yaw:.2f} deg about "
                                     f"the vertical since its background was recorded; realigned (summary.json)")
                 self._off.clear()
-            elif len(self._off) >= MISMATCH_FRAMES:
-                self._report_mismatch(share)
+                return turn_about_vertical(points, self.yaw_deg)
+        if len(self._off) >= MISMATCH_FRAMES:
+            self._report_mismatch(share)
         return turn_about_vertical(points, self.yaw_deg)
 
     def _report_mismatch(self, share: float) -> None:

@@ -11,7 +11,7 @@ import yaml
 
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.experiments.site_detector import learn_background, site_config
-from pcdet_memslidar.geometry.background import turn_about_vertical
+from pcdet_memslidar.geometry.background import BackgroundModel, turn_about_vertical
 from pcdet_memslidar.io import ground
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.monitor.background_watch import MISMATCH_FRAMES
@@ -110,3 +110,13 @@ def test_with_a_background_from_three_frames_the_other_seven_empty_frames_raise_
     boxes, summary = run_detect(load_config(tmp_path / "classical.yaml", profile="quick"), tmp_path / "empty",
                                 tmp_path / "out")
     assert summary["frames"] == 7 and summary["detections"] == 0 and summary["background_events"] == []
+
+
+def test_a_long_mismatch_searches_for_a_turn_once_every_mismatch_frames(room, monkeypatch):
+    cfg, tmp = room
+    searches = []
+    original = BackgroundModel.estimate_yaw
+    monkeypatch.setattr(BackgroundModel, "estimate_yaw",
+                        lambda self, points, seed=0: searches.append(1) or original(self, points, seed))
+    run_detect(cfg, tmp / "changed", tmp / "out_changed_searches")
+    assert len(searches) == 2  # the first frame, then the tenth: 12 frames off the background
