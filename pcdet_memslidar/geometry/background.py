@@ -114,7 +114,7 @@ class BackgroundModel:
             points = points[np.random.default_rng(seed).choice(len(points), YAW_SAMPLE, replace=False)]
         best = 0.0
         for low, high, step in ((-span, span, coarse), (-coarse, coarse, fine)):
-            offsets = np.arange(low, high + step / 2, step)
+            offsets = step * np.arange(round(low / step), round(high / step) + 1)  # 0 exactly among them
             candidates = best + offsets[np.argsort(np.abs(offsets), kind="stable")]  # ties: the smallest turn
             shares = [self.foreground_share(points, yaw) for yaw in candidates]
             best = float(candidates[int(np.argmin(shares))])

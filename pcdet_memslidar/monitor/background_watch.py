@@ -4,14 +4,16 @@ sensor that was bumped, turned or re-mounted, or a site that changed, most of th
 
 Per frame, in time order:
 1. the frame's returns (ground frame), turned by the yaw found so far, are scored: their foreground share;
-2. MISMATCH_FRAMES frames in a row above MISMATCH_SHARE (the first frame of a run alone suffices: a run starts
-   without people as often as not, and a turned sensor must not wait) look for a turn about the vertical that lays
-   the frame back onto the background (BackgroundModel.estimate_yaw, no labels), and again every MISMATCH_FRAMES
-   frames while the stretch lasts;
-3. if that turn brings the share below MISMATCH_SHARE, every frame from this one on is turned by it (the detections
-   come out in the site's frame again) and a `sensor_turned` event says so; otherwise a `background_mismatch`
-   event names the frames and detect warns once (the sensor moved, the site changed, or something stood close to
-   the sensor all that time).
+2. the first frame of a run (a turn of a degree may leave less than MISMATCH_SHARE off the background, and a
+   turned sensor must not wait), and MISMATCH_FRAMES frames in a row above MISMATCH_SHARE, look for a turn about the
+   vertical that lays the frame back onto the background (BackgroundModel.estimate_yaw, no labels), again every
+   MISMATCH_FRAMES frames while the stretch lasts;
+3. if that turn brings the share below MISMATCH_SHARE and lays at least MIN_EXPLAINED of the returns back onto the
+   background (a person's foreground no turn explains; a turn of a tenth of a degree moves fewer), every
+   frame from this one on is turned by it (the detections come out in the site's frame again) and a
+   `sensor_turned` event says so; otherwise, after MISMATCH_FRAMES frames, a `background_mismatch` event names the
+   frames and detect warns once (the sensor moved, the site changed, or something stood close to the sensor all
+   that time).
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import numpy as np
 from pcdet_memslidar.geometry.background import BackgroundModel, turn_about_vertical
 
 MISMATCH_SHARE = 0.05  # foreground share of a frame's returns above which it does not match the background
+MIN_EXPLAINED = 0.005  # a turn is taken where it lays at least this share of the returns back onto the background
 # frames in a row above it before a turn is searched or a mismatch reported: people close to a low sensor cover more
 # than MISMATCH_SHARE of its returns (a person 2 m in front of the bundled room's sensor: about 10 %), but they move
 MISMATCH_FRAMES = 10
@@ -45,13 +48,13 @@ class BackgroundWatch:
         first = self._frames_seen == 0
         self._frames_seen += 1
         share = self.model.foreground_share(points, self.yaw_deg)
-        if share <= MISMATCH_SHARE:
+        if share <= MISMATCH_SHARE and not first:
             self._off.clear()
             return turn_about_vertical(points, self.yaw_deg)
         self._off.append(name)
         if first or len(self._off) % MISMATCH_FRAMES == 0:  # a search takes 0.2-0.4 s: once per MISMATCH_FRAMES
             yaw, after = self.model.estimate_yaw(turn_about_vertical(points, self.yaw_deg))
-            if after <= MISMATCH_SHARE and yaw != 0.0:
+            if after <= MISMATCH_SHARE and share - after >= MIN_EXPLAINED:  # the turn explains the foreground
                 self.yaw_deg += yaw
                 self.events.append({"type": "sensor_turned", "frames": list(self._off), "yaw_deg": round(yaw, 3),
                                     "total_yaw_deg": round(self.yaw_deg, 3), "foreground_share_before": round(share, 4),
@@ -60,7 +63,9 @@ class BackgroundWatch:
                                     f"the vertical since its background was recorded; realigned (summary.json)")
                 self._off.clear()
                 return turn_about_vertical(points, self.yaw_deg)
-        if len(self._off) >= MISMATCH_FRAMES:
+        if share <= MISMATCH_SHARE:  # the first frame, on its background
+            self._off.clear()
+        elif len(self._off) >= MISMATCH_FRAMES:
             self._report_mismatch(share)
         return turn_about_vertical(points, self.yaw_deg)
 
