@@ -36,17 +36,19 @@ DEPTH_CLIP_M = 2.0  # the feature saturates here: a person stands at most about 
 RADIUS_SPACINGS = 1.5  # neighbours of a pulse: pulses within this many of the pattern's angle spacings
 YAW_SEARCH_DEG = (12.0, 0.5, 0.05)  # estimate_yaw: +- range, coarse step, fine step [deg]
 YAW_SAMPLE = 4000  # estimate_yaw scores at most this many returns of a frame
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 
 @dataclass(frozen=True)
 class BackgroundModel:
-    """directions (P, 3) unit pulse directions (sensor frame); range (P,) [m] background range (inf: none); mount:
-    sensor -> ground frame of the points it is asked about; frames: empty frames it was learned from; radius_rad:
+    """directions (P, 3) unit pulse directions (sensor frame); range (P,) [m] background range (inf: none);
+    own_range (P,) [m] each pulse's own nearest return (step 2 without the neighbours: what a turn is refined on);
+    mount: sensor -> ground frame of the points it is asked about; frames: empty frames it was learned from; radius_rad:
     the neighbourhood of step 2; margin_m, margin_per_m, depth_clip_m: see the module docstring."""
 
     directions: np.ndarray
     range: np.ndarray
+    own_range: np.ndarray
     mount: Mount
     frames: int
     radius_rad: float
@@ -69,7 +71,7 @@ class BackgroundModel:
         radius = RADIUS_SPACINGS * spacing_rad
         neighbours = tree.query_ball_point(directions, 2 * np.sin(radius / 2))  # chord of the angle
         background = np.array([nearest[group].min() for group in neighbours])
-        return cls(directions, background, mount, len(frames), radius, **settings)
+        return cls(directions, background, nearest, mount, len(frames), radius, **settings)
 
     @functools.cached_property
     def _tree(self) -> cKDTree:
@@ -78,13 +80,26 @@ class BackgroundModel:
     def lookup(self, points: np.ndarray, yaw_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(range (N,), background range (N,)) [m] of (N, 3+) points in the ground frame, turned by yaw_deg about
         the vertical through the sensor first (estimate_yaw)."""
+        ranges, pulse = self._match(points, yaw_deg)
+        return ranges, self.range[pulse]
+
+    def _match(self, points: np.ndarray, yaw_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """(range (N,) [m], nearest pulse (N,)) of (N, 3+) ground-frame points turned by yaw_deg."""
         xyz = turn_about_vertical(np.asarray(points, dtype=np.float64)[:, :3], yaw_deg)
         local = self.mount.ground_to_sensor(xyz)
         ranges = np.linalg.norm(local, axis=1)
         if not len(local):
-            return ranges, ranges.copy()
+            return ranges, np.zeros(0, dtype=np.int64)
         _, pulse = self._tree.query(local / np.maximum(ranges, 1e-9)[:, None])
-        return ranges, self.range[pulse]
+        return ranges, pulse
+
+    def residual(self, points: np.ndarray, yaw_deg: float = 0.0) -> float:
+        """Mean |range - own range of its pulse| [m], capped at 1 m, of the returns (N, 3+) whose pulse returned in
+        the empty frames: sharp in a turn, where the foreground share is flat within the neighbourhood."""
+        ranges, pulse = self._match(points, yaw_deg)
+        own = self.own_range[pulse]
+        known = np.isfinite(own)
+        return float(np.minimum(np.abs(ranges[known] - own[known]), 1.0).mean()) if known.any() else np.inf
 
     def margin(self, background: np.ndarray) -> np.ndarray:
         """(N,) margin [m] at background ranges (N,) [m]."""
@@ -108,23 +123,24 @@ class BackgroundModel:
 
     def estimate_yaw(self, points: np.ndarray, seed: int = 0) -> tuple[float, float]:
         """(yaw [deg], foreground share there): the turn about the vertical that best lays a frame's returns (N, 3+,
-        ground frame) onto the background, searched within +-YAW_SEARCH_DEG[0], coarse then fine; no labels needed."""
+        ground frame) onto the background, searched within +-YAW_SEARCH_DEG[0]: coarse on the foreground share, then
+        fine on the residual (a floor seen from above looks the same turned; what stands on it does not); no labels."""
         span, coarse, fine = YAW_SEARCH_DEG
         if len(points) > YAW_SAMPLE:
             points = points[np.random.default_rng(seed).choice(len(points), YAW_SAMPLE, replace=False)]
         best = 0.0
-        for low, high, step in ((-span, span, coarse), (-coarse, coarse, fine)):
+        for low, high, step, cost in ((-span, span, coarse, self.foreground_share),
+                                      (-coarse, coarse, fine, self.residual)):
             offsets = step * np.arange(round(low / step), round(high / step) + 1)  # 0 exactly among them
             candidates = best + offsets[np.argsort(np.abs(offsets), kind="stable")]  # ties: the smallest turn
-            shares = [self.foreground_share(points, yaw) for yaw in candidates]
-            best = float(candidates[int(np.argmin(shares))])
+            best = float(candidates[int(np.argmin([cost(points, yaw) for yaw in candidates]))])
         return best, self.foreground_share(points, best)
 
     def save(self, path: str | Path) -> None:
         """Write the model as .npz (atomic)."""
         from pcdet_memslidar.utils.atomic import write_bytes
         buffer = io.BytesIO()
-        np.savez(buffer, version=FORMAT_VERSION, directions=self.directions, range=self.range,
+        np.savez(buffer, version=FORMAT_VERSION, directions=self.directions, range=self.range, own_range=self.own_range,
                  mount=np.array(dataclasses.astuple(self.mount)), frames=self.frames,
                  settings=np.array([self.radius_rad, self.margin_m, self.margin_per_m, self.depth_clip_m]))
         write_bytes(path, buffer.getvalue())
@@ -144,7 +160,7 @@ def _load(path: str) -> BackgroundModel:
                 raise DataFormatError(path, f"background model version {int(data['version'])}, this package reads "
                                             f"{FORMAT_VERSION}: run `memslidar site train` again")
             radius, margin, per_m, clip = data["settings"].tolist()
-            return BackgroundModel(data["directions"], data["range"], Mount(*data["mount"].tolist()),
+            return BackgroundModel(data["directions"], data["range"], data["own_range"], Mount(*data["mount"].tolist()),
                                    int(data["frames"]), radius, margin, per_m, clip)
     except FileNotFoundError:
         raise DataFormatError(path, f"background model not found: {fix}") from None

@@ -62,6 +62,7 @@ def test_the_background_is_the_nearest_return_of_a_pulse_and_its_neighbours_over
     frames = [np.array([5.0 * AHEAD, 7.0 * far]), np.array([6.0 * AHEAD, 4.0 * near, 8.0 * far])]
     model = BackgroundModel.learn(np.stack([AHEAD, near, far]), frames, LEVEL, SPACING)
     assert model.range.tolist() == [4.0, 4.0, np.linalg.norm(7.0 * far)]  # 7 m, to the last bit of its norm
+    assert model.own_range.tolist() == [5.0, 4.0, np.linalg.norm(7.0 * far)]  # each pulse's own nearest return
 
 
 def test_the_model_survives_saving_and_a_broken_file_is_refused_naming_it(tmp_path):
