@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.utils.atomic import write_bytes
 
 MARGIN_M = 0.2  # a return this much nearer than its background (plus MARGIN_PER_M per m) is foreground
 MARGIN_PER_M = 0.01
@@ -138,7 +139,6 @@ class BackgroundModel:
 
     def save(self, path: str | Path) -> None:
         """Write the model as .npz (atomic)."""
-        from pcdet_memslidar.utils.atomic import write_bytes
         buffer = io.BytesIO()
         np.savez(buffer, version=FORMAT_VERSION, directions=self.directions, range=self.range, own_range=self.own_range,
                  mount=np.array(dataclasses.astuple(self.mount)), frames=self.frames,
