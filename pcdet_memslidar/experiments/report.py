@@ -28,6 +28,7 @@ import json
 import math
 import os
 import platform
+import subprocess
 import time
 from importlib import metadata
 from pathlib import Path
@@ -75,6 +76,8 @@ ORIENTATION = "orientation_error_deg"  # median angle [deg] between matched peop
 ORACLE = "oracle"  # in-domain training: Table 3 gives every model's difference to it
 DETECTOR_NAMES = {"SECONDNet": "SECOND", "CenterPoint": "CenterPoint"}  # MODEL.NAME -> Table 3's name
 LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
+VECTOR_EXTENSIONS = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_bf16",
+                     "amx_tile"}  # /proc/cpuinfo flags that decide float speed and rounding
 
 
 def summarise_runs(runs: list[dict]) -> tuple[dict, dict]:
@@ -140,20 +143,42 @@ def counterpart(models: dict, name: str, base: str) -> str | None:
 
 
 def environment() -> dict:
-    """results['environment']: package and library versions, CPU, cores, torch threads and GPU of this process."""
+    """results['environment']: package version and commit, library versions, CPU (model name and vector extensions),
+    the vector code torch and oneDNN may use here, cores, torch threads and GPU of this process."""
     libraries = {}
     for name in LIBRARIES:
         with contextlib.suppress(metadata.PackageNotFoundError):
             libraries[name] = metadata.version(name if name != "spconv" else _spconv_distribution())
-    cpu = platform.processor() or platform.machine()
+    cpu, flags = platform.processor() or platform.machine(), set()
     with contextlib.suppress(OSError):
-        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                 if line.startswith("model name")]
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        names = [line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")]
         cpu = names[0] if names else cpu
+        flags = next((set(line.split(":", 1)[1].split()) for line in lines if line.startswith("flags")), set())
     gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
-    return {"package": __version__, "python": platform.python_version(), "libraries": libraries,
-            "machine": {"cpu": cpu, "cores": available_cores(), "torch_threads": torch.get_num_threads(), "gpu": gpu,
+    return {"package": __version__, "commit": source_commit(), "python": platform.python_version(),
+            "libraries": libraries,
+            "machine": {"cpu": cpu, "vector_extensions": sorted(flags & VECTOR_EXTENSIONS),
+                        "aten_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+                        "onednn_max_cpu_isa": os.environ.get("ONEDNN_MAX_CPU_ISA"),
+                        "cores": available_cores(), "torch_threads": torch.get_num_threads(), "gpu": gpu,
                         "platform": platform.platform(), "load_average_1min": os.getloadavg()[0]}}
+
+
+def source_commit() -> str | None:
+    """The git commit of the package's source tree ('<hash>+dirty' with uncommitted changes to tracked files),
+    None outside a git checkout."""
+    root = Path(__file__).resolve().parents[2]
+    if not (root / ".git").exists():
+        return None
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              check=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("+dirty" if dirty else "")
 
 
 def _spconv_distribution() -> str:
@@ -452,15 +477,32 @@ def orientation_bin_table(results: dict) -> list[str]:
     return _table(["Model", *labels], rows)
 
 
+def machine_line(environment: dict) -> str:
+    """'CPU (vector extensions; torch's vector code), N cores, GPU' of results['environment'] (results from before
+    the extensions were recorded: the CPU alone)."""
+    machine = environment["machine"]
+    vectors = ", ".join(machine.get("vector_extensions", []))
+    if machine.get("aten_cpu_capability"):
+        vectors += f"; torch vector code {machine['aten_cpu_capability']}"
+    return (f"{machine['cpu']}{f' ({vectors})' if vectors else ''}, {machine['cores']} cores, GPU: "
+            f"{machine['gpu'] or 'none'}")
+
+
+def run_header(results: dict) -> str:
+    """The one line that says where a table's numbers come from: date, machine, commit, command."""
+    commit = results["environment"].get("commit") or "unknown"
+    return f"{results['date']}; {machine_line(results['environment'])}; commit {commit}; `{results['command']}`"
+
+
 def _environment_lines(results: dict) -> list[str]:
     environment = results["environment"]
     machine = environment["machine"]
     libraries = ", ".join(f"{name} {version}" for name, version in environment["libraries"].items())
-    return [f"- package: pcdet-memslidar {environment['package']}, Python {environment['python']}",
+    return [f"- package: pcdet-memslidar {environment['package']} (commit {environment.get('commit') or 'unknown'}), "
+            f"Python {environment['python']}",
             f"- libraries: {libraries}",
-            f"- machine: {machine['cpu']}, {machine['cores']} cores, torch threads {machine['torch_threads']}, "
-            f"GPU: {machine['gpu'] or 'none'}; 1-min load average at the end {machine['load_average_1min']:.1f} "
-            f"(timings grow when other processes share the cores)"]
+            f"- machine: {machine_line(environment)}, torch threads {machine['torch_threads']}; 1-min load average at "
+            f"the end {machine['load_average_1min']:.1f} (timings grow when other processes share the cores)"]
 
 
 def _stage_lines(results: dict) -> list[str]:

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from pcdet_memslidar.experiments.report import run_header
+
 NAMES = {"background": "background subtraction (classical)", "second": "SECOND",
          "second_background": "SECOND + background_depth"}
 SET_TITLES = {"test": "people", "pairs": "people in pairs", "test_distractors": "people beside distractors"}
@@ -45,9 +47,8 @@ def sites_table(runs: list[dict]) -> list[str]:
               "empty: detections / frame", "distractors: detections / frame", "frames / s"]
     rows, sources = [], []
     for results in runs:
-        machine, alarms = results["environment"]["machine"], results["false_alarms"]
-        sources.append(f"- {results['site']}: {results['date']}, {machine['cpu']} ({machine['cores']} cores), "
-                       f"`{results['command']}`, {results['wall_seconds'] / 60:.1f} min")
+        alarms = results["false_alarms"]
+        sources.append(f"- {results['site']}: {run_header(results)}; {results['wall_seconds'] / 60:.1f} min")
         for detector, scores in results["scores"].items():
             rows.append([results["site"], NAMES.get(detector, detector),
                          *(_ap(scores[name]) for name in ("test", "pairs", "test_distractors")),
@@ -72,14 +73,13 @@ def compared_models(results: dict) -> list[str]:
 
 def render_site_report(results: dict) -> str:
     """report.md of a `site train` run."""
-    machine, empty = results["environment"]["machine"], results["false_alarms"]["empty"]
+    empty = results["false_alarms"]["empty"]
     first = next(iter(empty.values()))
     distractor_frames = next(iter(results["false_alarms"]["distractors"].values()))["frames"]
     background, classical = results["background_model"], results["classical"]
     lines = [
         f"# Site detectors: {results['site']}", "",
-        f"{results['date']}, {machine['cpu']} ({machine['cores']} cores); command: `{results['command']}`; "
-        f"profile {results['profile']}; wall time {results['wall_seconds'] / 60:.1f} min.", "",
+        f"{run_header(results)}; profile {results['profile']}; wall time {results['wall_seconds'] / 60:.1f} min.", "",
         f"Background recording: `{results['background']}`; frames {results['held_out_frames'][0]} to "
         f"{results['held_out_frames'][1] - 1} held out (never trained on, nor in the background model). Mount "
         f"{results['mount']}. Grid (POINT_CLOUD_RANGE) {results['point_cloud_range']}. Background model: "

@@ -1,0 +1,24 @@
+"""results['environment'] says which code ran where: the git commit of this checkout, the CPU's vector extensions."""
+import subprocess
+from pathlib import Path
+
+import torch
+
+from pcdet_memslidar.experiments.report import VECTOR_EXTENSIONS, environment, run_header
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_environment_names_this_checkout_s_commit_and_the_cpu_s_vector_code():
+    env = environment()
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    if head:  # a git checkout (CI's clean clone is one)
+        assert env["commit"].removesuffix("+dirty") == head
+    assert set(env["machine"]["vector_extensions"]) <= VECTOR_EXTENSIONS
+    assert env["machine"]["aten_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
+
+
+def test_the_run_header_reads_results_from_before_the_commit_was_recorded():
+    results = {"date": "2026-11-28", "command": "memslidar reproduce",
+               "environment": {"machine": {"cpu": "Old CPU", "cores": 2, "gpu": None}}}
+    assert run_header(results) == "2026-11-28; Old CPU, 2 cores, GPU: none; commit unknown; `memslidar reproduce`"
