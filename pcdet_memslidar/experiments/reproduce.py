@@ -13,15 +13,21 @@ The story, one stage per line (each stage's wall time goes into the report):
    in its own process on its share of the cores: on a CPU the sparse convolutions use one thread, so several
    one-thread trainings make better use of the cores than one training on all of them;
 4. AP of the saved prediction labels against the industrial ground truth with bootstrap intervals over the test
-   frames, figures, results.json and report.md in the output folder (experiments.report).
+   frames, figures, results.json and report.md in the output folder (experiments.report);
+5. the untouched seed: every run's final checkpoint also predicts an industrial split simulated with
+   FINAL_TEST_SEED (<DATA_PATH>/<test>_final), scored for one table of the report and nothing else: no selection
+   rule, tool or analysis reads it (a test split that is looked at while choosing settings stops being unseen).
 Profiles (cfgs' PROFILES) change sizes, epochs, the grid and how many test frames are simulated
 (DATA_CONFIG.TEST_SOURCE.COUNT); the test split is every frame of the test domain's folder.
 """
 from __future__ import annotations
 
+import copy
 import datetime
 import time
 from pathlib import Path
+
+from easydict import EasyDict
 
 from pcdet_memslidar.config import CONFIG_DIR, load_config, profile_settings
 from pcdet_memslidar.datasets.infos import create_domain_infos
@@ -39,12 +45,16 @@ from pcdet_memslidar.experiments.report import (
     add_intervals,
     environment,
     model_entry,
+    score_run,
     write_report,
 )
 from pcdet_memslidar.experiments.runs import StageClock, check_run_options, run_jobs, runs_at_once, training_jobs
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.runtime.common import create_logger
+from pcdet_memslidar.runtime.eval_loop import prediction_folder
+from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.pretrain import split_stages
+from pcdet_memslidar.runtime.train import final_checkpoint
 from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_dataset
 from pcdet_memslidar.utils.atomic import refuse_overlap
@@ -56,6 +66,7 @@ FINETUNED = "M5"  # pre-trained on sim, fine-tuned on real at M3's compute (cfgs
 KNOWN_RUNS = (*MODELS, FINETUNED, ORACLE)  # in Table 3's order
 # dense head -> the folder of its experiment configs: SECOND's anchor head (the paper's), CenterPoint's center head
 HEADS = {"anchor": CONFIG_DIR, "center": CONFIG_DIR / "centerpoint"}
+FINAL_TEST_SEED = 2026  # the untouched test split's simulation seed (stage 5); the usual test split is seed 0
 
 
 def run_id(model: str, head: str) -> str:
@@ -100,16 +111,44 @@ def frames_needed(cfgs: dict) -> dict[str, Source]:
     return {name: source for name, source in needed.items() if source.count != 0}
 
 
+def is_imported(source: Source) -> bool:
+    """Whether the source's folder holds frames that were not simulated (imported recordings: no simulation.json)."""
+    return bool(KittiLayout(source.root).frame_ids()) and not (source.root / SETTINGS_FILE).is_file()
+
+
 def prepare_domain(source: Source, logger) -> None:
     """Simulate frames 0..count-1 of a bundled domain into the source's folder (complete frames are kept), unless
-    the folder holds frames that were not simulated (imported recordings, no simulation.json): those are used as
-    they are."""
-    layout = KittiLayout(source.root)
-    if layout.frame_ids() and not (source.root / SETTINGS_FILE).is_file():
-        logger.info(f"{source.name}: using the {len(layout.frame_ids())} frames in {source.root} as they are "
-                    f"(no {SETTINGS_FILE}: not simulated)")
+    the folder holds imported recordings (is_imported): those are used as they are."""
+    if is_imported(source):
+        logger.info(f"{source.name}: using the {len(KittiLayout(source.root).frame_ids())} frames in {source.root} "
+                    f"as they are (no {SETTINGS_FILE}: not simulated)")
         return
     simulate_dataset(get_domain(source.domain), source.count, source.root, seed=source.seed)
+
+
+def final_test_source(test: Source) -> Source | None:
+    """The untouched test split (stage 5): the test source's domain simulated with FINAL_TEST_SEED, as many frames,
+    in a folder beside it; None where the test split is not simulated (imported recordings have no other seed)."""
+    if test.domain not in BUNDLED_DOMAINS or is_imported(test):
+        return None
+    name = f"{test.name}_final"
+    return Source(name, test.root.with_name(name), test.count, test.domain, FINAL_TEST_SEED)
+
+
+def score_final_test(jobs: list[dict], final: Source, out: Path, logger) -> dict[str, list[dict]]:
+    """Stage 5: {model: [run entry per seed: metrics of the final checkpoint on the untouched split, predictions]}."""
+    gt_dir = KittiLayout(final.root).training / "label_2"
+    runs: dict[str, list[dict]] = {}
+    for job in jobs:
+        cfg = copy.deepcopy(job["cfg"])
+        cfg.DATA_CONFIG.TEST_SOURCE = EasyDict({"NAME": final.name, "PATH": str(final.root), "DOMAIN": final.domain,
+                                                "SEED": final.seed, "COUNT": None})
+        result_dir = Path(job["run_dir"]) / "final_test"
+        predict(cfg, final_checkpoint(cfg, job["run_dir"]), result_dir, logger)
+        pred_dir = prediction_folder(result_dir) / final.name
+        runs.setdefault(job["model"], []).append(
+            {"seed": job["seed"], **score_run(gt_dir, pred_dir), "predictions": str(pred_dir.relative_to(out))})
+    return runs
 
 
 def prepare_data(needed: dict[str, Source], clock, logger) -> dict[str, list[dict]]:
@@ -156,6 +195,10 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
     bases = {name: model for name, model, _ in planned}  # run id -> M1 ... oracle
     cfgs = {name: model_config(model, profile, data_root, set_cfgs, head) for name, model, head in planned}
     needed = frames_needed(cfgs)
+    test = next(iter(cfgs.values())).DATA_CONFIG.TEST_SOURCE.NAME
+    final = final_test_source(needed[test])
+    if final is not None:
+        needed[final.name] = final
     refuse_overlap(out, [source.root for source in needed.values()], "--out")
     out.mkdir(parents=True, exist_ok=True)
     logger = create_logger(out / "reproduce_log.txt")
@@ -163,8 +206,7 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
 
     infos = prepare_data(needed, clock, logger)  # 1. data, 2. infos
 
-    test = next(iter(cfgs.values())).DATA_CONFIG.TEST_SOURCE.NAME  # 3. train and evaluate M1-M4 and the oracle
-    test_layout = KittiLayout(needed[test].root)
+    test_layout = KittiLayout(needed[test].root)  # 3. train and evaluate M1-M4 and the oracle
     gt_dir, velodyne_dir = test_layout.training / "label_2", test_layout.training / "velodyne"
     parallel = runs_at_once(seeds * len(cfgs), jobs)
     todo = training_jobs(cfgs, seeds, out / "models", gt_dir, out, workers, parallel)
@@ -191,6 +233,16 @@ def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None
         add_figures(results, {model: model_runs[0] for model, model_runs in runs.items()}, gt_dir, velodyne_dir, out,
                     benchmark_file)
         add_intervals(results, gt_dir, out)
+    if final is not None:  # 5. the untouched seed
+        with clock("untouched test seed"):
+            final_runs = score_final_test(todo, final, out, logger)
+            results["final_test"] = {
+                "test_domain": final.domain, "seed": final.seed, "path": str(final.root), "seeds": results["seeds"],
+                "models": {name: model_entry(entry["cfg"], entry["counts"], final_runs[name], entry["detector"],
+                                             entry["model"]) for name, entry in results["models"].items()}}
+            (out / "final_test").mkdir(exist_ok=True)
+            add_intervals(results["final_test"], KittiLayout(final.root).training / "label_2", out,
+                          figure_dir=out / "final_test")
     results["stages"] = clock.seconds
     results["wall_seconds"] = time.perf_counter() - wall_start
     report_path, json_path = write_report(results, out)

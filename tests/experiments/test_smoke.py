@@ -17,7 +17,7 @@ from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.evaluation import ap_summary, evaluate
 from pcdet_memslidar.evaluation.folders import read_label_folder
 from pcdet_memslidar.experiments.report import table2, table3
-from pcdet_memslidar.experiments.reproduce import MODELS, RUNS, model_config, reproduce
+from pcdet_memslidar.experiments.reproduce import FINAL_TEST_SEED, MODELS, RUNS, model_config, reproduce
 from pcdet_memslidar.experiments.runs import train_detector
 from pcdet_memslidar.io.kitti import CLASS_NAME
 from pcdet_memslidar.runtime.eval_loop import split_config
@@ -145,11 +145,31 @@ def test_report_complete_and_consistent(smoke):
     assert len({entry["frame_id"] for entry in examples}) == 3
     assert all((data / "industrial" / "training" / "velodyne" / f"{e['frame_id']}.bin").is_file() for e in examples)
     stages = stored["stages"]
-    assert {"data: sim", "data: real", "data: industrial", "data: industrial_seed1", "infos", "figures",
-            "train and evaluate 5 models (2 at once)"} == set(stages)
+    assert {"data: sim", "data: real", "data: industrial", "data: industrial_seed1", "data: industrial_final", "infos",
+            "figures", "train and evaluate 5 models (2 at once)", "untouched test seed"} == set(stages)
     assert sum(stages.values()) <= stored["wall_seconds"]
     assert stored["profile"] == "smoke" and stored["environment"]["libraries"]["torch"]
     assert stored["models"] == json.loads(json.dumps(results["models"]))  # returned == written
+
+
+def test_the_untouched_seed_is_scored_from_its_own_frames_with_the_same_checkpoints(smoke):
+    """Stage 5: every model's final checkpoint predicts the industrial split of FINAL_TEST_SEED (other frames than the
+    test split's), its AP is the evaluator's on those predictions, and the report shows that table."""
+    out, data, results = smoke
+    final = results["final_test"]
+    assert final["seed"] == FINAL_TEST_SEED and final["test_domain"] == "industrial"
+    final_gt, test_gt = (data / name / "training" / "label_2" for name in ("industrial_final", "industrial"))
+    assert sorted(p.name for p in final_gt.iterdir()) == sorted(p.name for p in test_gt.iterdir())
+    assert [p.read_text() for p in sorted(final_gt.iterdir())] != [p.read_text() for p in sorted(test_gt.iterdir())]
+    assert set(final["models"]) == set(results["models"])
+    for model in final["models"].values():
+        run, = model["runs"]
+        assert "industrial_final" in run["predictions"]
+        metrics = evaluator_json(final_gt, out / run["predictions"])
+        assert run["metrics"]["AP3D_R40"] == pytest.approx(metrics["AP3D_R40"], abs=1e-9)
+    text = (out / "report.md").read_text()
+    assert f"seed {FINAL_TEST_SEED}" in text
+    assert all(line in text for line in table3(json.loads((out / "results.json").read_text())["final_test"]))
 
 
 def test_second_run_reuses_data_and_models(smoke):
