@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "site": ("site", "your own site without annotating: check a site file's floor; train a detector on its empty "
                      "recording with simulated people composited in"),
     "detect": ("detect", "a trained detector on recordings: detections, tracks and zone events (no raw points)"),
+    "docs": ("docs", "store finished runs' results and render README's and docs/results.md's tables from them"),
 }
 
 

@@ -16,6 +16,7 @@ import pytest
 from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.evaluation import ap_summary, evaluate
 from pcdet_memslidar.evaluation.folders import read_label_folder
+from pcdet_memslidar.experiments.publish import blocks, store_run, stored_runs
 from pcdet_memslidar.experiments.report import table2, table3
 from pcdet_memslidar.experiments.reproduce import FINAL_TEST_SEED, MODELS, RUNS, model_config, reproduce
 from pcdet_memslidar.experiments.runs import train_detector
@@ -170,6 +171,20 @@ def test_the_untouched_seed_is_scored_from_its_own_frames_with_the_same_checkpoi
     text = (out / "report.md").read_text()
     assert f"seed {FINAL_TEST_SEED}" in text
     assert all(line in text for line in table3(json.loads((out / "results.json").read_text())["final_test"]))
+
+
+def test_docs_renders_table3_of_the_run_with_its_header(smoke, tmp_path):
+    out, _, _ = smoke
+    readme = tmp_path / "README.md"
+    readme.write_text("<!-- BEGIN GENERATED table3 -->\n<!-- END GENERATED table3 -->\n")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "results.md").write_text("<!-- BEGIN GENERATED results -->\n<!-- END GENERATED results -->\n")
+    store_run(out, tmp_path)
+    rendered = blocks(stored_runs(tmp_path))
+    stored = json.loads((out / "results.json").read_text())
+    assert set(table3(stored)) <= set(rendered["results"])
+    assert "commit" in rendered["results"][2] and "pytest smoke" in rendered["results"][2]
+    assert (tmp_path / "docs" / "figures" / "table3_smoke_ap_intervals.png").read_bytes()[:8] == PNG_MAGIC
 
 
 def test_second_run_reuses_data_and_models(smoke):

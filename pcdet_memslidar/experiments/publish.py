@@ -1,0 +1,142 @@
+"""`memslidar docs`: the numbers in README.md and docs/results.md, rendered from the results.json of finished runs.
+
+A run's output folder (`memslidar reproduce` or `memslidar site train`) is stored once: its results.json goes to
+docs/results/<kind>_<name>.json and its main figure to docs/figures/; from the stored files, every generated block
+of README.md and docs/results.md is rendered again. A generated block sits between two marker lines
+
+    <!-- BEGIN GENERATED name -->
+    <!-- END GENERATED name -->
+
+and nothing else in a page is touched. Each table carries its header: date, machine (CPU model and vector
+extensions), commit and command (experiments.report.run_header), so prose never has to.
+"""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.experiments.report import (
+    bin_table,
+    final_test_lines,
+    interval_note,
+    order_statement,
+    orientation_bin_table,
+    run_header,
+    table3,
+)
+from pcdet_memslidar.experiments.site_report import side_by_side, sites_table
+from pcdet_memslidar.utils.atomic import write_text
+
+STORE = Path("docs") / "results"  # the stored results.json files, relative to the repository root
+FIGURES = Path("docs") / "figures"
+PAGES = (Path("README.md"), Path("docs") / "results.md")  # the pages whose generated blocks are rendered
+BLOCK = re.compile(r"^<!-- BEGIN GENERATED (\S+) -->\n(.*?)^<!-- END GENERATED \1 -->$", re.DOTALL | re.MULTILINE)
+MAIN_PROFILE = "quick"  # the reproduction README shows
+
+
+def run_kind(results: dict) -> tuple[str, str]:
+    """('reproduce', profile) or ('site', site name) of a results dict."""
+    if "models" in results and "test_domain" in results:
+        return "reproduce", results["profile"]
+    if "site" in results and "scores" in results:
+        return "site", results["site"]
+    raise ConfigError("not the results of `memslidar reproduce` or `memslidar site train` (no models or scores)")
+
+
+def store_run(run_dir: Path, root: Path) -> Path:
+    """Copy run_dir/results.json to root/STORE/<kind>_<name>.json and the run's main figure (Table 3's intervals, or
+    the site's held-out frames) to root/FIGURES; returns the stored file."""
+    source = run_dir / "results.json"
+    if not source.is_file():
+        raise DataFormatError(run_dir, "no results.json here: give the output folder of a finished `memslidar "
+                                       "reproduce` or `memslidar site train`")
+    try:
+        results = json.loads(source.read_text())
+        kind, name = run_kind(results)
+    except (json.JSONDecodeError, ConfigError) as error:
+        raise DataFormatError(source, f"{error}; give the output folder of a finished run") from None
+    target = root / STORE / f"{kind}_{name}.json"
+    write_text(target, json.dumps(results, indent=1) + "\n")
+    figure = (run_dir / results.get("figures", {}).get("ap_intervals", "") if kind == "reproduce"
+              else Path(results.get("figure", "")))
+    if figure.is_file():
+        name_of = f"table3_{name}_ap_intervals.png" if kind == "reproduce" else f"site_{name}_detections.png"
+        (root / FIGURES).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(figure, root / FIGURES / name_of)
+    return target
+
+
+def stored_runs(root: Path) -> dict[str, dict]:
+    """{file stem: results} of every stored run under root/STORE, in name order."""
+    return {path.stem: json.loads(path.read_text()) for path in sorted((root / STORE).glob("*.json"))}
+
+
+def reproduce_block(results: dict, details: bool = False) -> list[str]:
+    """Table 3 of a stored reproduction with its header, intervals and the paper's order; with `details` the
+    distance-bin tables too."""
+    note, orientation = interval_note(results), orientation_bin_table(results)
+    lines = [f"Source: {run_header(results)}; {results['wall_seconds'] / 60:.1f} min.", "", *table3(results), "",
+             *([note, ""] if note else []), order_statement(results), "", *final_test_lines(results)]
+    if details:
+        lines += ["AP 3D R40 per distance bin (BEV range from the sensor):", "", *bin_table(results), ""]
+        if orientation:
+            lines += ["Median orientation error (deg) per distance bin, against the simulator's labels:", "",
+                      *orientation, ""]
+    return lines
+
+
+def blocks(runs: dict[str, dict]) -> dict[str, list[str]]:
+    """{block name: its lines} from the stored runs: `table3` (the quick reproduction), `sites` (every site side by
+    side), `results` (docs/results.md's body: every reproduction with its details, every site's full table)."""
+    reproductions = {name: results for name, results in runs.items() if name.startswith("reproduce_")}
+    sites = [results for name, results in runs.items() if name.startswith("site_")]
+    main = reproductions.get(f"reproduce_{MAIN_PROFILE}")
+    missing = ["No stored run yet: `memslidar docs --add OUTPUT_FOLDER` stores one."]
+    body = []
+    for name, results in reproductions.items():
+        body += [f"## Table 3: {results['profile']} profile, {len(results['seeds'])} seed(s)", "",
+                 *reproduce_block(results, details=True)]
+    if sites:
+        body += ["## Sites: three detectors from an empty recording", "", *sites_table(sites), ""]
+        for results in sites:
+            body += [f"### {results['site']}", "", f"Source: {run_header(results)}.", "", *side_by_side(results), ""]
+    return {"table3": reproduce_block(main) if main else missing, "sites": sites_table(sites) if sites else missing,
+            "results": body or missing}
+
+
+def fill_blocks(text: str, rendered: dict[str, list[str]], page: Path) -> str:
+    """`text` with every generated block's body replaced by rendered[name]; DataFormatError naming the page for a
+    block name nothing renders."""
+    def body(match: re.Match) -> str:
+        name = match.group(1)
+        if name not in rendered:
+            raise DataFormatError(page, f"unknown generated block '{name}': use one of {', '.join(rendered)}")
+        content = "\n".join(rendered[name]).strip("\n")
+        return f"<!-- BEGIN GENERATED {name} -->\n{content}\n<!-- END GENERATED {name} -->"
+    return BLOCK.sub(body, text)
+
+
+def strip_blocks(text: str) -> str:
+    """`text` without its generated blocks (the prose a person wrote)."""
+    return BLOCK.sub("", text)
+
+
+def publish(root: Path, add: list[Path]) -> list[Path]:
+    """Store the runs `add` under root, then render every generated block of root's PAGES; returns the pages
+    written (only those whose text changed)."""
+    for run_dir in add:
+        store_run(run_dir, root)
+    rendered, written = blocks(stored_runs(root)), []
+    for page in PAGES:
+        path = root / page
+        if not path.is_file():
+            raise DataFormatError(path, "missing: run `memslidar docs` from the repository root (--root)")
+        text = path.read_text()
+        new = fill_blocks(text, rendered, path)
+        if new != text:
+            write_text(path, new)
+            written.append(path)
+    return written
