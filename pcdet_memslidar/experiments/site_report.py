@@ -27,16 +27,19 @@ def side_by_side(results: dict) -> list[str]:
     scores, alarms = results["scores"], results["false_alarms"]
     sets = list(next(iter(scores.values())))
     header = ["detector", *(f"AP 3D R40 [95 %], {SET_TITLES.get(name, name)}" for name in sets),
-              "AP BEV R40, people", "empty frames: detections / frame (/ min)", "distractor frames: detections / frame",
+              "AP BEV R40, people", "empty frames: detections / frame", "distractor frames: detections / frame",
               "frames / s (detect)"]
     rows = [[NAMES.get(detector, detector), *(_ap(scores[detector][name]) for name in sets),
              _ap(scores[detector]["test"], "APBEV_R40"),
-             f"{alarms['empty'][detector]['detections_per_frame']:.2f} "
-             f"({alarms['empty'][detector]['detections_per_minute']:.1f})",
-             f"{alarms['distractors'][detector]['detections_per_frame']:.2f}",
+             _per_frame(alarms["empty"][detector]), _per_frame(alarms["distractors"][detector]),
              f"{alarms['distractors'][detector]['frames_per_s']:.1f}"]
             for detector in scores]
     return _table(header, rows)
+
+
+def _per_frame(alarms: dict) -> str:
+    """'0.00 (3 frames, 0.37 s)': detections per frame with the frames and seconds of recording they rest on."""
+    return f"{alarms['detections_per_frame']:.2f} ({alarms['frames']} frames, {alarms['seconds']:.2f} s)"
 
 
 def sites_table(runs: list[dict]) -> list[str]:
@@ -52,9 +55,7 @@ def sites_table(runs: list[dict]) -> list[str]:
         for detector, scores in results["scores"].items():
             rows.append([results["site"], NAMES.get(detector, detector),
                          *(_ap(scores[name]) for name in ("test", "pairs", "test_distractors")),
-                         f"{alarms['empty'][detector]['detections_per_frame']:.2f} "
-                         f"({alarms['empty'][detector]['frames']} frames)",
-                         f"{alarms['distractors'][detector]['detections_per_frame']:.2f}",
+                         _per_frame(alarms["empty"][detector]), _per_frame(alarms["distractors"][detector]),
                          f"{alarms['distractors'][detector]['frames_per_s']:.1f}"])
     return [*sources, "", *_table(header, rows)]
 
@@ -62,10 +63,8 @@ def sites_table(runs: list[dict]) -> list[str]:
 def compared_models(results: dict) -> list[str]:
     """False alarms of every model (the site's and the bundled --compare ones) on the sets without people."""
     alarms = results["false_alarms"]
-    rows = [[NAMES.get(model, model), f"{alarms['empty'][model]['detections_per_frame']:.2f}",
-             str(alarms["empty"][model]["confirmed_tracks"]),
-             f"{alarms['distractors'][model]['detections_per_frame']:.2f}",
-             str(alarms["distractors"][model]["confirmed_tracks"])]
+    rows = [[NAMES.get(model, model), _per_frame(alarms["empty"][model]), str(alarms["empty"][model]["confirmed_tracks"]),
+             _per_frame(alarms["distractors"][model]), str(alarms["distractors"][model]["confirmed_tracks"])]
             for model in alarms["empty"]]
     return _table(["model", "empty: detections / frame", "empty: confirmed tracks", "distractors: detections / frame",
                    "distractors: confirmed tracks"], rows)
