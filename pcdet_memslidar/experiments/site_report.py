@@ -63,8 +63,9 @@ def sites_table(runs: list[dict]) -> list[str]:
 def compared_models(results: dict) -> list[str]:
     """False alarms of every model (the site's and the bundled --compare ones) on the sets without people."""
     alarms = results["false_alarms"]
-    rows = [[NAMES.get(model, model), _per_frame(alarms["empty"][model]), str(alarms["empty"][model]["confirmed_tracks"]),
-             _per_frame(alarms["distractors"][model]), str(alarms["distractors"][model]["confirmed_tracks"])]
+    rows = [[NAMES.get(model, model), _per_frame(alarms["empty"][model]),
+             str(alarms["empty"][model]["confirmed_tracks"]), _per_frame(alarms["distractors"][model]),
+             str(alarms["distractors"][model]["confirmed_tracks"])]
             for model in alarms["empty"]]
     return _table(["model", "empty: detections / frame", "empty: confirmed tracks", "distractors: detections / frame",
                    "distractors: confirmed tracks"], rows)

@@ -23,7 +23,8 @@ RESULTS = {"site": "room", "date": "2026-11-28T10:00:00+00:00", "command": "mems
 
 def test_the_side_by_side_table_gives_each_ap_with_its_interval_and_the_false_alarms():
     assert side_by_side(RESULTS)[2] == ("| background subtraction (classical) | 0.500 [0.400, 0.600] | n/a | "
-                                        "0.250 [0.125, 0.375] | 0.500 [0.400, 0.600] | 0.00 (3 frames, 0.37 s) | 1.50 (3 frames, 0.37 s) | 20.2 |")
+                                        "0.250 [0.125, 0.375] | 0.500 [0.400, 0.600] | 0.00 (3 frames, 0.37 s) | "
+                                        "1.50 (3 frames, 0.37 s) | 20.2 |")
 
 
 def test_the_table_over_sites_names_each_run_and_its_machine():
