@@ -67,6 +67,7 @@ OPTIONAL_KEYS = (
     "TRACKER",  # tracker parameters of `memslidar detect` (monitor.tracker.TrackerConfig)
     "HOOK",  # OpenPCDet's training hooks (runtime.hooks: DisableAugmentationHook)
     "DATA_CONFIG.BACKGROUND_MODEL",  # a site's background.npz, for the background_depth feature (geometry.background)
+    "DATA_CONFIG.FOREGROUND_ONLY",  # the network sees only the returns in front of the background (datasets.dataset)
     "MODEL.BACKGROUND_SUBTRACTION",  # settings of MODEL.NAME BackgroundSubtraction (models.background_subtraction)
 )
 

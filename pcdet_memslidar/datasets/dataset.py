@@ -15,7 +15,7 @@ import torch
 
 from ..errors import ConfigError, DataFormatError, OutputError
 from ..geometry.background import BackgroundModel
-from .processor import DataProcessor, PointFeatureEncoder
+from .processor import DataProcessor, PointFeatureEncoder, take_points
 
 USER_ERRORS = (DataFormatError, ConfigError, OutputError)  # the errors whose message names the file and the fix
 BACKGROUND_FEATURE = "background_depth"  # a src feature computed from the site's background model, not stored
@@ -33,6 +33,7 @@ class DatasetTemplate(torch.utils.data.Dataset):
         self.point_cloud_range = np.array(dataset_cfg.POINT_CLOUD_RANGE, dtype=np.float32)
         self.point_feature_encoder = PointFeatureEncoder(dataset_cfg.POINT_FEATURE_ENCODING, self.point_cloud_range)
         self.background = self._background_model(dataset_cfg)
+        self.foreground_only = self._foreground_only(dataset_cfg)
         self.data_augmentor = None  # set by the subclass once it knows its gt databases (training only)
         self.data_processor = DataProcessor(dataset_cfg.DATA_PROCESSOR, self.point_cloud_range, training,
                                             self.point_feature_encoder.num_point_features)
@@ -56,6 +57,17 @@ class DatasetTemplate(torch.utils.data.Dataset):
                               f"DATA_CONFIG.BACKGROUND_MODEL to the site's background.npz (memslidar site train "
                               f"writes it)")
         return BackgroundModel.load(dataset_cfg.BACKGROUND_MODEL)
+
+    def _foreground_only(self, dataset_cfg) -> bool:
+        """DATA_CONFIG.FOREGROUND_ONLY (default False): keep only the points whose background_depth is above 0;
+        ConfigError naming the key where the points carry no background_depth."""
+        gate = dataset_cfg.get("FOREGROUND_ONLY", False)
+        if not isinstance(gate, bool):
+            raise ConfigError(f"DATA_CONFIG.FOREGROUND_ONLY is {gate!r}: use True or False")
+        if gate and BACKGROUND_FEATURE not in self.point_feature_encoder.src_feature_list:
+            raise ConfigError(f"DATA_CONFIG.FOREGROUND_ONLY needs {BACKGROUND_FEATURE} in "
+                              f"POINT_FEATURE_ENCODING.src_feature_list (and DATA_CONFIG.BACKGROUND_MODEL)")
+        return gate
 
     def point_features(self, points: np.ndarray) -> np.ndarray:
         """(N, 4) points as stored [x, y, z, intensity] (ground frame) -> (N, len(src_feature_list)): with
@@ -111,6 +123,9 @@ class DatasetTemplate(torch.utils.data.Dataset):
             data_dict["gt_boxes"] = np.concatenate([boxes[selected, :7], classes[:, None]], axis=1)
             data_dict["gt_names"] = names[selected]
         data_dict["points"] = np.asarray(data_dict["points"], dtype=np.float32)
+        if self.foreground_only:  # background returns out, with their times
+            column = self.point_feature_encoder.src_feature_list.index(BACKGROUND_FEATURE)
+            take_points(data_dict, data_dict["points"][:, column] > 0)
         data_dict = self.point_feature_encoder.forward(data_dict)
         data_dict = self.data_processor.forward(data_dict, self.generator)
         if self.training and len(data_dict["gt_boxes"]) == 0:

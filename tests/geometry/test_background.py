@@ -132,3 +132,25 @@ def test_a_config_that_names_the_feature_without_a_model_is_refused_naming_the_k
     del config["BACKGROUND_MODEL"]
     with pytest.raises(ConfigError, match="DATA_CONFIG.BACKGROUND_MODEL"):
         DatasetTemplate(EasyDict(config), ["Pedestrian"], training=False, root_path=tmp_path)
+
+
+def test_foreground_only_keeps_the_returns_in_front_of_the_background_with_their_times(tmp_path):
+    two_pulse_model().save(tmp_path / "background.npz")
+    dataset = DatasetTemplate(EasyDict({**_data_config(tmp_path / "background.npz"), "FOREGROUND_ONLY": True}),
+                              ["Pedestrian"], training=False, root_path=tmp_path)
+    # straight ahead: 1 cm in front of the wall (background), 0.5 m in front; to the left: no background ever
+    points = np.column_stack([ground_points([[4.99, 0, 0], [4.5, 0, 0], [0, 3.0, 0]]), np.zeros(3)])
+    frame = dataset.prepare_data({"points": dataset.point_features(points), "frame_id": "0",
+                                  "point_times": np.array([0.1, 0.2, 0.3], dtype=np.float32)})
+    assert np.array_equal(frame["point_times"], np.array([0.2, 0.3], dtype=np.float32))
+    assert np.allclose(frame["points"][:, 4], [0.5, 2.0])
+
+
+def test_foreground_only_without_the_feature_is_refused_naming_the_key(tmp_path):
+    config = {**_data_config(tmp_path / "background.npz"), "FOREGROUND_ONLY": True}
+    config["POINT_FEATURE_ENCODING"] = {**config["POINT_FEATURE_ENCODING"],
+                                        "src_feature_list": ["x", "y", "z", "intensity"],
+                                        "used_feature_list": ["x", "y", "z", "intensity"]}
+    del config["BACKGROUND_MODEL"]
+    with pytest.raises(ConfigError, match="DATA_CONFIG.FOREGROUND_ONLY needs background_depth"):
+        DatasetTemplate(EasyDict(config), ["Pedestrian"], training=False, root_path=tmp_path)

@@ -16,7 +16,7 @@ def mask_points_by_range(points: np.ndarray, limit_range: np.ndarray) -> np.ndar
     return ((points[:, :3] >= limit_range[:3]) & (points[:, :3] <= limit_range[3:6])).all(axis=1)
 
 
-def _take_points(data_dict: dict, selection: np.ndarray) -> None:
+def take_points(data_dict: dict, selection: np.ndarray) -> None:
     """Keep the points picked by `selection` (a mask or indices), and their point_times where the frame has them."""
     for key in ("points", "point_times"):
         if key in data_dict:
@@ -76,7 +76,7 @@ class DataProcessor:
         remove_outside_boxes = bool(config.get("REMOVE_OUTSIDE_BOXES", True))
 
         def mask(data_dict, rng):
-            _take_points(data_dict, mask_points_by_range(data_dict["points"], self.point_cloud_range))
+            take_points(data_dict, mask_points_by_range(data_dict["points"], self.point_cloud_range))
             if data_dict.get("gt_boxes") is not None and remove_outside_boxes and self.training:
                 keep = mask_boxes_outside_range(data_dict["gt_boxes"], self.point_cloud_range)
                 data_dict["gt_boxes"] = data_dict["gt_boxes"][keep]
@@ -99,7 +99,7 @@ class DataProcessor:
 
         def shuffle(data_dict, rng):
             if enabled:
-                _take_points(data_dict, rng.permutation(len(data_dict["points"])))
+                take_points(data_dict, rng.permutation(len(data_dict["points"])))
             return data_dict
         return shuffle
 
