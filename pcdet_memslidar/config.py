@@ -5,6 +5,11 @@ mapping: the base file is loaded first and the mapping's own keys are merged ont
 lists and scalars replace); a mapping with `_BASE_CONFIG_` replaces whatever an outer base put under its key.
 `cfg_from_list(['A.B', 'VALUE', ...], cfg)` overrides existing (or known, see below) keys with YAML-parsed values.
 
+Our key `_MODEL_CONFIG_` (top level only): a model config whose MODEL, and each profile's MODEL, replace those of
+the `_BASE_CONFIG_` whole, before the file's own keys merge on; everything else (data, optimisation, profiles' other
+keys) stays the base's. An experiment on another head: `_BASE_CONFIG_: ../m3.yaml` and
+`_MODEL_CONFIG_: ../memslidar_models/centerpoint_person.yaml` (cfgs/centerpoint/).
+
 The fix (OpenPCDet #1185): `_BASE_CONFIG_` and `DATA_PATH` values resolve relative to the file that wrote them
 first, then to the working directory (`resolve_path`); after loading they hold absolute paths.
 
@@ -18,11 +23,12 @@ checked: a MODEL section whose NAME no shipped config uses (another OpenPCDet mo
 mappings inside lists.
 
 Public API:
-    cfg_from_yaml_file(cfg_file, merge_to=None) -> EasyDict
+    cfg_from_yaml_file(cfg_file, merge_to=None, model_config=None) -> EasyDict
     cfg_from_list(cfg_list, config) -> None
     merge_new_config(config, new_config, cfg_file=None) -> EasyDict
     apply_profile(config, profile=None) -> EasyDict
-    load_config(cfg_file, set_cfgs=None, profile=None) -> EasyDict   (yaml + profile + --set, names set, grid checked)
+    load_config(cfg_file, set_cfgs=None, profile=None, model_config=None) -> EasyDict
+                                                  (yaml + profile + --set, names set, grid checked)
     resolve_path(base_file, value) -> Path
     experiment_group(cfg_file) -> str
     log_config_to_file(config, pre='cfg', logger=None) -> None
@@ -45,6 +51,7 @@ from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.grid import check_config_grid
 
 BASE_KEY = "_BASE_CONFIG_"
+MODEL_KEY = "_MODEL_CONFIG_"  # the model config that gives a config its MODEL (module docstring)
 PATH_KEYS = ("DATA_PATH", "BACKGROUND_MODEL")  # string values resolved relative to the file that wrote them
 DEFAULT_PROFILE = "paper"
 _PACKAGE_DIR = Path(__file__).resolve().parent
@@ -152,21 +159,22 @@ def _load_yaml_file(path: Path) -> dict:
     return mapping
 
 
-def _base_file(requester: Path | None, value, chain: tuple[Path, ...]) -> Path:
-    """Resolve a `_BASE_CONFIG_` value written in `requester`, checking that it exists and is not a cycle."""
+def _base_file(requester: Path | None, value, chain: tuple[Path, ...], key: str = BASE_KEY) -> Path:
+    """Resolve a `key` (_BASE_CONFIG_, _MODEL_CONFIG_) value written in `requester`, checking that it exists and is not
+    a cycle."""
     who = str(requester) if requester is not None else "<in-memory config>"
     if not isinstance(value, (str, Path)):
-        raise ConfigError(f"{who}: {BASE_KEY} must be a file path, got {value!r}")
+        raise ConfigError(f"{who}: {key} must be a file path, got {value!r}")
     path = resolve_path(requester, value)
     if not path.is_file():
         line = _line_of(requester, str(value)) if requester is not None and requester.is_file() else None
         where = f"{who}:{line}" if line else who
         places = f"{requester.parent} or {Path.cwd()}" if requester is not None else str(Path.cwd())
-        raise ConfigError(f"{where}: {BASE_KEY} '{value}' not found (looked relative to {places}); "
+        raise ConfigError(f"{where}: {key} '{value}' not found (looked relative to {places}); "
                           f"fix the path in {who}")
     if path in chain:
         cycle = " -> ".join(str(p) for p in chain + (path,))
-        raise ConfigError(f"{who}: {BASE_KEY} cycle {cycle}; remove one of the includes")
+        raise ConfigError(f"{who}: {key} cycle {cycle}; remove one of the includes")
     return path
 
 
@@ -222,7 +230,7 @@ def _check_keys(node: dict, schema: dict | None, path: Path, at: tuple[str, ...]
                           and node["NAME"] not in names):
         return  # no schema here, or another OpenPCDet module with its own keys
     for key, value in node.items():
-        if key == BASE_KEY:
+        if key == BASE_KEY or (key == MODEL_KEY and not at + keys):
             continue
         where = keys + (key,)
         if key not in schema:
@@ -247,16 +255,15 @@ def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...], at: tupl
     """
     if BASE_KEY in node:
         base = _base_file(cfg_file, node[BASE_KEY], chain)
-        base_node = _load_yaml_file(base)
-        if at is not None:
-            _check_keys(base_node, _schema_at(at), base, at)
-        result = _expand(base_node, base, chain + (base,), at)
+        result = _expand_file(base, chain, at)
         result[BASE_KEY] = str(base)
     else:
         result = EasyDict()
+    if MODEL_KEY in node:
+        _take_model(result, _base_file(cfg_file, node[MODEL_KEY], chain, MODEL_KEY), chain, at)
     own = EasyDict()
     for key, value in node.items():
-        if key == BASE_KEY:
+        if key in (BASE_KEY, MODEL_KEY):
             continue
         if isinstance(value, dict):
             value = _expand(value, cfg_file, chain, None if at is None else at + (key,))
@@ -267,6 +274,34 @@ def _expand(node: dict, cfg_file: Path | None, chain: tuple[Path, ...], at: tupl
     return result
 
 
+def _expand_file(path: Path, chain: tuple[Path, ...], at: tuple[str, ...] | None) -> EasyDict:
+    """The config file `path` expanded (_expand), its keys checked against the schema at key path `at` (None: not)."""
+    node = _load_yaml_file(path)
+    if at is not None:
+        _check_keys(node, _schema_at(at), path, at)
+    return _expand(node, path, chain + (path,), at)
+
+
+def _take_model(config: EasyDict, model_file: Path, chain: tuple[Path, ...], at: tuple[str, ...] | None) -> None:
+    """Replace the MODEL of `config` and of each of its profiles by those of the model config `model_file` (its keys
+    checked unless `at` is None), recorded as config's _MODEL_CONFIG_. A profile it gives no MODEL loses its own;
+    profiles `config` lacks are not added."""
+    model = _expand_file(model_file, chain, None if at is None else ())
+    if "MODEL" not in model:
+        raise ConfigError(f"{model_file}: has no MODEL, so it cannot be a {MODEL_KEY}; name a model config such as "
+                          f"cfgs/memslidar_models/centerpoint_person.yaml")
+    config.MODEL = model.MODEL
+    model_profiles = model.get("PROFILES") or {}
+    for name, overrides in (config.get("PROFILES") or {}).items():
+        model_overrides = (model_profiles.get(name) or {}).get("MODEL")
+        if model_overrides is not None:
+            config.PROFILES[name] = overrides = overrides or EasyDict()
+            overrides.MODEL = model_overrides
+        elif overrides:
+            overrides.pop("MODEL", None)
+    config[MODEL_KEY] = str(model_file)
+
+
 def merge_new_config(config: EasyDict, new_config: dict, cfg_file: str | Path | None = None) -> EasyDict:
     """Merge `new_config` (read from `cfg_file`, whose folder anchors its relative paths) into `config`."""
     cfg_file = Path(cfg_file).resolve() if cfg_file is not None else None
@@ -275,8 +310,11 @@ def merge_new_config(config: EasyDict, new_config: dict, cfg_file: str | Path | 
     return config
 
 
-def cfg_from_yaml_file(cfg_file: str | Path, merge_to: EasyDict | None = None) -> EasyDict:
-    """Load the YAML config `cfg_file` (with its bases) into `merge_to` (a new EasyDict if None) and return it.
+def cfg_from_yaml_file(cfg_file: str | Path, merge_to: EasyDict | None = None,
+                       model_config: str | Path | None = None) -> EasyDict:
+    """Load the YAML config `cfg_file` (with its bases) into `merge_to` (a new EasyDict if None) and return it;
+    model_config: a model config whose MODEL replaces the loaded one's, as a file with `_BASE_CONFIG_: cfg_file` and
+    `_MODEL_CONFIG_: model_config` would.
 
     ConfigError for a key the schema does not know (see the module docstring); a dataset config (DATASET, no
     DATA_CONFIG) is checked as a DATA_CONFIG.
@@ -289,7 +327,10 @@ def cfg_from_yaml_file(cfg_file: str | Path, merge_to: EasyDict | None = None) -
     at = ("DATA_CONFIG",) if "DATASET" in mapping and "DATA_CONFIG" not in mapping else ()
     _check_keys(mapping, _schema_at(at), path, at)
     path = path.resolve()
-    _merge(config, _expand(mapping, path, (path,), at))
+    expanded = _expand(mapping, path, (path,), at)
+    if model_config is not None:
+        _take_model(expanded, Path(model_config).resolve(), (path,), at)
+    _merge(config, expanded)
     return config
 
 
@@ -425,9 +466,11 @@ def experiment_group(cfg_file: str | Path) -> str:
     return parts[-1] if parts else ""
 
 
-def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile: str | None = None) -> EasyDict:
-    """The full config: YAML (with bases), then the profile (`profile`, a --set PROFILE, or the file's PROFILE),
-    then the --set overrides; also sets ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH.
+def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile: str | None = None,
+                model_config: str | Path | None = None) -> EasyDict:
+    """The full config: YAML (with bases; with the MODEL of `model_config` if given: cfg_from_yaml_file), then the
+    profile (`profile`, a --set PROFILE, or the file's PROFILE), then the --set overrides; also sets
+    ROOT_DIR, LOCAL_RANK, CFG_FILE, TAG and EXP_GROUP_PATH.
 
     ConfigError (naming the file) for a POINT_CLOUD_RANGE that is no 6 numbers, for a SECOND model whose voxel
     grid it cannot take (pcdet_memslidar.grid.check_config_grid, with sizes that fit) and for optimisation values
@@ -436,7 +479,7 @@ def load_config(cfg_file: str | Path, set_cfgs: list[str] | None = None, profile
     asked = dict(pairs).get("PROFILE")
     if profile and asked and str(asked) != str(profile):
         raise ConfigError(f"--profile {profile} and --set PROFILE {asked} ask for two profiles: give one of them")
-    config = cfg_from_yaml_file(cfg_file)
+    config = cfg_from_yaml_file(cfg_file, model_config=model_config)
     apply_profile(config, profile or asked)
     cfg_from_list([item for pair in pairs if pair[0] != "PROFILE" for item in pair], config)
     config.ROOT_DIR = cfg.ROOT_DIR

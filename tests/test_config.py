@@ -2,6 +2,7 @@
 from pathlib import Path
 
 import pytest
+import yaml
 
 from pcdet_memslidar.config import (
     apply_profile,
@@ -13,6 +14,7 @@ from pcdet_memslidar.config import (
     resolve_path,
 )
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.experiments import reproduce
 
 CFGS = Path(__file__).resolve().parents[1] / "cfgs"
 
@@ -291,15 +293,72 @@ def test_set_reaches_into_an_optional_block_and_names_a_list_it_cannot_index():
                                 "mapping: --set replaces it whole (--set DATA_CONFIG.DATA_PROCESSOR VALUE)")
 
 
+def test_model_config_replaces_the_model_and_each_profiles_model_whole(project):
+    models = project / "cfgs/models"
+    _write(models / "second.yaml", """
+_BASE_CONFIG_: base.yaml
+MODEL: {NAME: SECONDNet, DENSE_HEAD: {NAME: AnchorHeadSingle, NUM_DIR_BINS: 2}}
+PROFILES:
+    quick: {MODEL: {DENSE_HEAD: {NUM_DIR_BINS: 4}}}
+""")
+    center = _write(models / "center.yaml", """
+CLASS_NAMES: [Car]
+MODEL: {NAME: CenterPoint, DENSE_HEAD: {NAME: CenterHead, NUM_HM_CONV: 2}}
+OPTIMIZATION: {LR: 0.5}
+PROFILES:
+    smoke: {MODEL: {DENSE_HEAD: {NUM_HM_CONV: 1}}}
+""")
+    _write(models / "experiment.yaml", "_BASE_CONFIG_: second.yaml\n_MODEL_CONFIG_: center.yaml\n"
+                                       "MODEL: {POST_PROCESSING: {SCORE_THRESH: 0.2}}\n")
+    cfg = cfg_from_yaml_file(models / "experiment.yaml")
+    head = {"NAME": "CenterPoint", "DENSE_HEAD": {"NAME": "CenterHead", "NUM_HM_CONV": 2}}
+    assert cfg.MODEL == {**head, "POST_PROCESSING": {"SCORE_THRESH": 0.2}}  # the file's own keys merge on
+    assert cfg._MODEL_CONFIG_ == str(center.resolve())
+    assert (cfg.CLASS_NAMES, cfg.OPTIMIZATION.LR) == (["Pedestrian"], 1e-4)  # the rest is the base's
+    assert cfg.PROFILES == {"quick": {"OPTIMIZATION": {"NUM_EPOCHS": 2, "DECAY_STEP_LIST": [1]}},
+                            "smoke": {"OPTIMIZATION": {"NUM_EPOCHS": 1, "BATCH_SIZE_PER_GPU": 1},
+                                      "MODEL": {"DENSE_HEAD": {"NUM_HM_CONV": 1}}}}
+    assert apply_profile(cfg, "smoke").MODEL.DENSE_HEAD.NUM_HM_CONV == 1
+    assert cfg_from_yaml_file(models / "second.yaml", model_config=center).MODEL == head  # as the key
+
+
+def test_model_config_errors_name_the_file_and_the_fix(project):
+    models = project / "cfgs/models"
+    missing = _write(models / "missing.yaml", "_BASE_CONFIG_: base.yaml\n_MODEL_CONFIG_: nope.yaml\n")
+    with pytest.raises(ConfigError, match=r"missing\.yaml:2: _MODEL_CONFIG_ 'nope\.yaml' not found .* fix the path"):
+        cfg_from_yaml_file(missing)
+    no_model = _write(models / "no_model.yaml", "_BASE_CONFIG_: m1.yaml\n_MODEL_CONFIG_: base.yaml\n")
+    with pytest.raises(ConfigError, match=r"base\.yaml: has no MODEL, so it cannot be a _MODEL_CONFIG_; name a model "
+                                          r"config such as cfgs/memslidar_models/centerpoint_person\.yaml"):
+        cfg_from_yaml_file(no_model)
+    nested = _write(models / "nested.yaml", "_BASE_CONFIG_: base.yaml\nOPTIMIZATION: {_MODEL_CONFIG_: base.yaml}\n")
+    with pytest.raises(ConfigError, match=r"nested\.yaml:2: unknown key OPTIMIZATION\._MODEL_CONFIG_"):
+        cfg_from_yaml_file(nested)
+
+
+BOOKKEEPING = ("_BASE_CONFIG_", "_MODEL_CONFIG_", "CFG_FILE", "TAG", "EXP_GROUP_PATH")  # where a config came from
+
+
 @pytest.mark.parametrize("experiment", ["m1", "m2", "m3", "m4", "m5", "oracle"])
 @pytest.mark.parametrize("profile", ["paper", "quick", "smoke"])
-def test_each_centerpoint_experiment_differs_from_seconds_in_the_head_only(experiment, profile):
-    second = load_config(CFGS / f"{experiment}.yaml", profile=profile)
+def test_each_center_head_experiment_loads_as_the_copy_it_replaced(tmp_path, experiment, profile):
+    """cfgs/centerpoint/<experiment>.yaml (cfgs/<experiment>.yaml with the center model) and reproduce's center head
+    load as the copy did: centerpoint_person.yaml with cfgs/<experiment>.yaml's own keys (data, PRETRAIN)."""
+    own = yaml.safe_load((CFGS / f"{experiment}.yaml").read_text())
+    own["_BASE_CONFIG_"] = str(CFGS / "memslidar_models" / "centerpoint_person.yaml")
+    copy = load_config(_write(tmp_path / "copy.yaml", yaml.safe_dump(own, sort_keys=False)), profile=profile)
     center = load_config(CFGS / "centerpoint" / f"{experiment}.yaml", profile=profile)
-    assert center.MODEL.NAME == "CenterPoint" and center.MODEL.DENSE_HEAD.NAME == "CenterHead"
-    for key in ("DATA_CONFIG", "OPTIMIZATION", "CLASS_NAMES", "PRETRAIN"):
-        assert second.get(key) == center.get(key), key
+    composed = reproduce.model_config(experiment, profile, None, head="center")
+    for config in (center, composed):
+        assert [item for item in config.items() if item[0] not in BOOKKEEPING] == \
+            [item for item in copy.items() if item[0] not in BOOKKEEPING]  # key order too
+
+
+@pytest.mark.parametrize("profile", ["paper", "quick", "smoke"])
+def test_the_center_model_differs_from_seconds_in_the_head_only(profile):
+    second = load_config(CFGS / "memslidar_models" / "second_person.yaml", profile=profile).MODEL
+    center = load_config(CFGS / "memslidar_models" / "centerpoint_person.yaml", profile=profile).MODEL
     for section in ("VFE", "BACKBONE_3D", "MAP_TO_BEV", "BACKBONE_2D"):
-        assert second.MODEL[section] == center.MODEL[section], section
-    stride = center.MODEL.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE
-    assert [anchor["feature_map_stride"] for anchor in second.MODEL.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG] == [stride]
+        assert second[section] == center[section], section
+    stride = center.DENSE_HEAD.TARGET_ASSIGNER_CONFIG.FEATURE_MAP_STRIDE
+    assert [anchor["feature_map_stride"] for anchor in second.DENSE_HEAD.ANCHOR_GENERATOR_CONFIG] == [stride]

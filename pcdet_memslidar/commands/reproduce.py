@@ -11,7 +11,7 @@ from pathlib import Path
 from pcdet_memslidar.commands.options import add_experiment_arguments, add_profile, add_set, experiment_command
 from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.experiments.report import HEADLINE
-from pcdet_memslidar.experiments.reproduce import HEADS, KNOWN_RUNS, RUNS, reproduce
+from pcdet_memslidar.experiments.reproduce import KNOWN_RUNS, PAPER_HEAD, RUNS, head_configs, reproduce
 
 BENCHMARK_RESULTS = Path("output/benchmark/model_benchmark.json")  # tools/benchmark_model.py's, relative to the repo
 
@@ -21,9 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", default=list(RUNS), choices=list(KNOWN_RUNS),
                         help="the models to train and test (default: %(default)s; M5: pre-trained on sim, "
                              "fine-tuned on real, cfgs/m5.yaml)")
-    parser.add_argument("--heads", nargs="+", default=["anchor"], choices=list(HEADS),
-                        help="the dense heads to train each model with (default: %(default)s, SECOND's, the paper's; "
-                             "center: CenterPoint's, cfgs/centerpoint/)")
+    configs = ", ".join(f"{head}: {path.name}" for head, path in head_configs().items())
+    parser.add_argument("--heads", nargs="+", default=[PAPER_HEAD], choices=list(head_configs()),
+                        help=f"the dense heads to train each model with, each with the MODEL of its model config "
+                             f"({configs}; default: %(default)s, SECOND's, the paper's)")
     add_experiment_arguments(parser, "models")
     parser.add_argument("--benchmark", type=Path, default=Path(global_cfg.ROOT_DIR) / BENCHMARK_RESULTS,
                         help="tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time "
@@ -35,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path(global_cfg.ROOT_DIR) / "output" / "reproduce" / args.profile
     data_root = args.data_root.resolve() if args.data_root is not None else None
     models = [] if args.models == list(RUNS) else ["--models", *args.models]
-    heads = [] if args.heads == ["anchor"] else ["--heads", *args.heads]
-    command = experiment_command(["memslidar reproduce", *models, *heads], args)
+    head_args = [] if args.heads == [PAPER_HEAD] else ["--heads", *args.heads]
+    command = experiment_command(["memslidar reproduce", *models, *head_args], args)
     results = reproduce(args.profile, args.seeds, out.resolve(), data_root, args.workers, command, args.set_cfgs,
                         args.jobs, args.benchmark, tuple(args.models), tuple(args.heads))
     for model, entry in results["models"].items():

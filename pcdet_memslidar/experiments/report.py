@@ -60,6 +60,7 @@ from pcdet_memslidar.evaluation.figures import (
 from pcdet_memslidar.evaluation.folders import CLASS_NAME, aligned_folders, read_label_folder
 from pcdet_memslidar.evaluation.metrics import ap_summary, evaluate
 from pcdet_memslidar.io.kitti import read_points
+from pcdet_memslidar.models import DETECTORS
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
 
@@ -74,7 +75,6 @@ INTERVAL_METRICS = TABLE3_COLUMNS  # bootstrap intervals of these (all distances
 REFERENCE_MODEL = "M1"
 ORIENTATION = "orientation_error_deg"  # median angle [deg] between matched people's long sides (evaluation.diagnose)
 ORACLE = "oracle"  # in-domain training: Table 3 gives every model's difference to it
-DETECTOR_NAMES = {"SECONDNet": "SECOND", "CenterPoint": "CenterPoint"}  # MODEL.NAME -> Table 3's name
 LIBRARIES = ("torch", "spconv", "numpy", "scipy", "open3d", "matplotlib", "easydict", "pyyaml")  # versions reported
 VECTOR_EXTENSIONS = {"sse4_2", "avx", "avx2", "fma", "avx512f", "avx512_vnni", "avx512_bf16", "avx512_fp16", "amx_bf16",
                      "amx_tile"}  # /proc/cpuinfo flags that decide float speed and rounding
@@ -399,6 +399,11 @@ def order_statement(results: dict, metric: str = HEADLINE) -> str:
     return text
 
 
+def detector_names() -> dict[str, str]:
+    """MODEL.NAME -> Table 3's name (its display_name) of every registered detector (models.DETECTORS)."""
+    return {name: detector.display_name for name, detector in DETECTORS.items()}
+
+
 def finetune_statement(results: dict, metric: str = HEADLINE) -> str:
     """M5 (pre-trained on sim, fine-tuned on real) against M3 (sim and real mixed) at the same compute; '' without
     both."""
@@ -422,13 +427,14 @@ def table3(results: dict) -> list[str]:
     models, seeds = results["models"], len(results["seeds"])
     paper_gain = {name: 100.0 * (value - PAPER_AP[REFERENCE_MODEL]) for name, value in PAPER_AP.items()}
     with_oracle = any((entry.get("model") or name) == ORACLE for name, entry in models.items())
+    names = detector_names()
     rows = []
     for name, model in models.items():
         mean, std, interval = model["mean"], model["std"], model.get("interval", {})
         ms, orientation = mean.get("ms_per_frame"), mean.get(ORIENTATION)
         references = [counterpart(models, name, base) for base in (REFERENCE_MODEL, *[ORACLE] * with_oracle)]
         rows.append([name if name in PAPER_AP else f"{name} (not in the paper)",
-                     DETECTOR_NAMES.get(model.get("detector", "SECONDNet"), model.get("detector")),
+                     names.get(model.get("detector", "SECONDNet"), model.get("detector")),
                      ap_text(mean.get(HEADLINE), std.get(HEADLINE), seeds, interval.get(HEADLINE)),
                      f"{PAPER_AP[name]:.2f}" if name in PAPER_AP else "-",
                      *(("-" if other is None else difference_text(models, name, other)) for other in references[:1]),

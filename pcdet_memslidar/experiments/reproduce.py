@@ -50,6 +50,7 @@ from pcdet_memslidar.experiments.report import (
 )
 from pcdet_memslidar.experiments.runs import StageClock, check_run_options, run_jobs, runs_at_once, training_jobs
 from pcdet_memslidar.io.layout import KittiLayout
+from pcdet_memslidar.models.detector import DENSE_HEADS
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
 from pcdet_memslidar.runtime.predict import predict
@@ -64,24 +65,31 @@ ORACLE = "oracle"  # trained in-domain: the ceiling of what a mix can reach on t
 RUNS = (*MODELS, ORACLE)  # what the reproduction trains unless told otherwise
 FINETUNED = "M5"  # pre-trained on sim, fine-tuned on real at M3's compute (cfgs/m5.yaml): a question of the paper's
 KNOWN_RUNS = (*MODELS, FINETUNED, ORACLE)  # in Table 3's order
-# dense head -> the folder of its experiment configs: SECOND's anchor head (the paper's), CenterPoint's center head
-HEADS = {"anchor": CONFIG_DIR, "center": CONFIG_DIR / "centerpoint"}
 FINAL_TEST_SEED = 2026  # the untouched test split's simulation seed (stage 5); the usual test split is seed 0
+PAPER_HEAD = "anchor"  # SECOND's, the head cfgs/m1.yaml ... oracle.yaml are written for
+
+
+def head_configs() -> dict[str, Path]:
+    """The heads a reproduction trains: the short_name of each registered dense head (models.detector.DENSE_HEADS)
+    that has a model_config -> that model config, which gives the experiment configs their MODEL."""
+    return {head.short_name: CONFIG_DIR / head.model_config for head in DENSE_HEADS.values()
+            if getattr(head, "model_config", None)}
 
 
 def run_id(model: str, head: str) -> str:
-    """The name of `model` (of KNOWN_RUNS) trained with `head` (of HEADS) in results and output folders: 'M3' with
-    the paper's anchor head, 'M3-center' with the center head."""
-    return model if head == "anchor" else f"{model}-{head}"
+    """The name of `model` (of KNOWN_RUNS) trained with `head` (of head_configs()) in results and output folders:
+    'M3' with the paper's anchor head, 'M3-center' with the center head."""
+    return model if head == PAPER_HEAD else f"{model}-{head}"
 
 
 def model_config(model: str, profile: str, data_root: Path | None, set_cfgs: list[str] | None = None,
-                 head: str = "anchor"):
-    """The experiment config cfgs/<model>.yaml (cfgs/centerpoint/<model>.yaml for the center head) with `profile`
-    applied, then DATA_PATH = data_root (if given) and the --set overrides [KEY, VALUE, ...] (checked at load: grid,
-    batch size, epochs, lr)."""
+                 head: str = PAPER_HEAD):
+    """The experiment config cfgs/<model>.yaml (for a head other than the paper's with the MODEL of its model
+    config, head_configs()) with `profile` applied, then DATA_PATH = data_root (if given) and the --set overrides
+    [KEY, VALUE, ...] (checked at load: grid, batch size, epochs, lr)."""
     overrides = (["DATA_CONFIG.DATA_PATH", str(data_root)] if data_root is not None else []) + list(set_cfgs or [])
-    return load_config(HEADS[head] / f"{model.lower()}.yaml", overrides, profile=profile)
+    return load_config(CONFIG_DIR / f"{model.lower()}.yaml", overrides, profile=profile,
+                       model_config=None if head == PAPER_HEAD else head_configs()[head])
 
 
 def frames_needed(cfgs: dict) -> dict[str, Source]:
@@ -178,17 +186,19 @@ def table2_counts(cfg) -> dict[str, dict[str, int]]:
 def reproduce(profile: str, seeds: int, out: Path, data_root: Path | None = None, workers: int = 0,
               command: str = "", set_cfgs: list[str] | None = None, jobs: int | None = None,
               benchmark_file: Path | None = None, models: tuple[str, ...] = RUNS,
-              heads: tuple[str, ...] = ("anchor",)) -> dict:
+              heads: tuple[str, ...] = (PAPER_HEAD,)) -> dict:
     """Run the whole reproduction (module docstring) of `models` (of KNOWN_RUNS), each with every head of `heads`
-    (of HEADS; runs named by run_id), and return the results dict written to out/results.json. benchmark_file:
-    tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time figure when it exists."""
+    (of head_configs(); runs named by run_id), and return the results dict written to out/results.json.
+    benchmark_file: tools/benchmark_model.py's results, drawn beside this run's models in the AP-vs-time figure when
+    it exists."""
     unknown = [model for model in models if model not in KNOWN_RUNS]
     if unknown or not models:
         raise ConfigError(f"--models {' '.join(models)}: choose from {' '.join(KNOWN_RUNS)}")
-    if not heads or any(head not in HEADS for head in heads):
-        raise ConfigError(f"--heads {' '.join(heads)}: choose from {' '.join(HEADS)}")
+    known_heads = head_configs()
+    if not heads or any(head not in known_heads for head in heads):
+        raise ConfigError(f"--heads {' '.join(heads)}: choose from {' '.join(known_heads)}")
     models = tuple(model for model in KNOWN_RUNS if model in models)
-    heads = tuple(head for head in HEADS if head in heads)
+    heads = tuple(head for head in known_heads if head in heads)
     jobs = check_run_options(seeds, jobs, workers, len(models) * len(heads))
     started, wall_start = datetime.datetime.now().astimezone(), time.perf_counter()
     planned = [(run_id(model, head), model, head) for head in heads for model in models]

@@ -4,7 +4,8 @@ Public API:
     build_network(model_cfg, num_class, dataset) -> nn.Module    (model chosen by model_cfg.NAME)
     load_data_to_device(batch_dict, device) -> batch_dict          (numpy arrays -> tensors, in place)
     is_learned(model_cfg) -> bool                                   (False: no weights, no training, no checkpoint)
-    DETECTORS: NAME -> detector class; per-stage registries in models.detector
+    DETECTORS: MODEL.NAME -> detector class (its display_name names it in reports); register_detector(cls) adds one
+    per-stage registries in models.detector (DENSE_HEADS, register_dense_head)
 """
 from __future__ import annotations
 
@@ -13,10 +14,19 @@ import torch
 
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.models.background_subtraction import BackgroundSubtraction
-from pcdet_memslidar.models.detector import CenterPoint, SECONDNet
+from pcdet_memslidar.models.detector import CenterPoint, SECONDNet, register
 
 DETECTORS = {"SECONDNet": SECONDNet, "CenterPoint": CenterPoint, "BackgroundSubtraction": BackgroundSubtraction}
 _HOST_KEYS = {"frame_id", "metadata", "calib", "image_shape", "gt_names", "db_flag"}  # left as they are
+
+
+def register_detector(detector: type[torch.nn.Module]) -> type[torch.nn.Module]:
+    """Make `detector` the MODEL.NAME of its class name (a class decorator); it needs a `display_name`, its name in
+    reports."""
+    if not isinstance(getattr(detector, "display_name", None), str):
+        raise ValueError(f"{detector.__qualname__}: set the class attribute display_name (its name in reports, "
+                         f"e.g. 'SECOND' for SECONDNet) before registering it")
+    return register(DETECTORS, "MODEL.NAME", detector)
 
 
 def build_network(model_cfg, num_class: int, dataset) -> torch.nn.Module:

@@ -26,6 +26,9 @@ class AnchorHeadSingle(nn.Module):
     Anchors are non-persistent buffers (they follow .to(device) and stay out of the state dict, as in OpenPCDet).
     """
 
+    short_name = "anchor"  # `memslidar reproduce --heads` and run ids; MODEL from model_config (register_dense_head)
+    model_config = "memslidar_models/second_person.yaml"
+
     def __init__(self, model_cfg, input_channels: int, num_class: int, class_names, grid_size, point_cloud_range,
                  predict_boxes_when_training: bool = False, **kwargs):
         super().__init__()

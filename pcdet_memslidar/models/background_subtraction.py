@@ -89,6 +89,7 @@ def detect_people(points: np.ndarray, depth: np.ndarray, settings: dict, box_ste
 class BackgroundSubtraction(nn.Module):
     """The module docstring's detector; eval only (it has nothing to train)."""
 
+    display_name = "BackgroundSubtraction"
     learned = False  # no weights: no training, no checkpoint
 
     def __init__(self, model_cfg, num_class: int, dataset):

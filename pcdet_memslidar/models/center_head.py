@@ -51,6 +51,9 @@ class CenterHead(nn.Module):
     """Heatmap + regression head; forward(batch_dict) adds in eval 'final_box_dicts' (per frame pred_boxes (K, 7),
     pred_scores (K,), pred_labels (K,) 1-based); in training it keeps the targets for get_loss."""
 
+    short_name = "center"  # `memslidar reproduce --heads` and run ids; MODEL from model_config (register_dense_head)
+    model_config = "memslidar_models/centerpoint_person.yaml"
+
     def __init__(self, model_cfg, input_channels: int, num_class: int, class_names, grid_size, point_cloud_range,
                  voxel_size, predict_boxes_when_training: bool = False, **kwargs):
         super().__init__()

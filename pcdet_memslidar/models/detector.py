@@ -45,12 +45,30 @@ def _float32(value):
     return value.float() if isinstance(value, torch.Tensor) and value.dtype == torch.bfloat16 else value
 
 
-# OpenPCDet's registries: module NAME in the config -> class
+# OpenPCDet's registries (its __all__ tables): module NAME in the config -> class
 VFES = {"MeanVFE": MeanVFE}
 BACKBONES_3D = {"VoxelBackBone8x": VoxelBackBone8x}
 MAPS_TO_BEV = {"HeightCompression": HeightCompression}
 BACKBONES_2D = {"BaseBEVBackbone": BaseBEVBackbone}
-DENSE_HEADS = {"AnchorHeadSingle": AnchorHeadSingle, "CenterHead": CenterHead}
+DENSE_HEADS = {"AnchorHeadSingle": AnchorHeadSingle, "CenterHead": CenterHead}  # see register_dense_head
+
+
+def register(registry: dict, key: str, module: type) -> type:
+    """Add `module` to `registry` under its class name, the value of config key `key` that selects it; returns it.
+    ValueError if another class has that name there."""
+    name = module.__name__
+    if registry.get(name, module) is not module:
+        raise ValueError(f"{key} {name} is taken by {registry[name].__module__}.{name}: give "
+                         f"{module.__module__}.{name} another class name")
+    registry[name] = module
+    return module
+
+
+def register_dense_head(head: type[nn.Module]) -> type[nn.Module]:
+    """Make `head` the DENSE_HEAD.NAME of its class name (a class decorator). Its `short_name` (run ids 'M3-center')
+    and `model_config` (the shipped model config with this head, relative to cfgs/) put it in `memslidar reproduce
+    --heads`; a head without them is built from configs only."""
+    return register(DENSE_HEADS, "DENSE_HEAD.NAME", head)
 
 
 def _lookup(registry: dict, section: str, model_cfg):
@@ -69,6 +87,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
     """
 
     module_topology = ["vfe", "backbone_3d", "map_to_bev_module", "backbone_2d", "dense_head"]
+    display_name: str  # the detector's name in reports (Table 3's Architecture column)
     dense_head_names: tuple[str, ...] = ()  # the heads a detector is made for (empty: any)
     precision = "fp32"  # one of PRECISIONS, for inference (set_precision)
     train_precision = "fp32"  # one of PRECISIONS, for training (set_precision(..., training=True))
@@ -171,6 +190,7 @@ class Detector3DTemplate(nn.Module, abc.ABC):
 class SECONDNet(Detector3DTemplate):
     """SECOND (Yan et al. 2018): the anchor head's scores and boxes -> plausible sizes, threshold, rotated NMS."""
 
+    display_name = "SECOND"
     dense_head_names = ("AnchorHeadSingle",)
 
     def __init__(self, model_cfg, num_class: int, dataset):
@@ -186,6 +206,7 @@ class SECONDNet(Detector3DTemplate):
 class CenterPoint(Detector3DTemplate):
     """CenterPoint (Yin et al. 2021), one stage: the center head's final boxes (its own NMS)."""
 
+    display_name = "CenterPoint"
     dense_head_names = ("CenterHead",)
 
     def post_processing(self, batch_dict: dict) -> list[dict]:
