@@ -11,7 +11,7 @@ import torch
 from pcdet_memslidar.commands.options import add_mount_arguments, add_precision, add_profile, add_set, add_time_unit
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.monitor.detect import FORMATS, FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect
+from pcdet_memslidar.monitor.detect import FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect, detect_formats
 from pcdet_memslidar.monitor.zones import read_zones
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.utils.cores import shorten_time_slice
@@ -25,8 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a recording (.bfpc, many frames), a frame file, a folder of frames or a KITTI-layout "
                              "folder")
     parser.add_argument("--format", "--ext", dest="fmt", default="auto", type=lambda text: text.lstrip("."),
-                        help=f"one of {', '.join(FORMATS)} (default auto: a KITTI layout, or the files' suffix); "
-                             "--ext .bin as in OpenPCDet's demo.py")
+                        help=f"one of {', '.join(detect_formats())} (default auto: a KITTI layout, or the files' "
+                             "suffix); --ext .bin as in OpenPCDet's demo.py")
     add_mount_arguments(parser)
     add_time_unit(parser)
     parser.add_argument("--zones", type=Path, default=None, help="zone file (YAML): named polygons with a level")
@@ -45,8 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.fmt not in FORMATS:
-        raise ConfigError(f"--format {args.fmt!r}: use one of {', '.join(FORMATS)}")
+    if args.fmt not in detect_formats():
+        raise ConfigError(f"--format {args.fmt!r}: use one of {', '.join(detect_formats())}")
     if (args.batch_size is not None and args.batch_size < 1) or not 0 < args.frame_period < math.inf:
         raise ConfigError("--batch-size must be >= 1 and --frame-period a finite number of seconds > 0")
     cfg = load_config(args.cfg_file, args.set_cfgs, profile=args.profile)

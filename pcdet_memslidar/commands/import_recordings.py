@@ -1,4 +1,4 @@
-"""`memslidar import`: real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> a KITTI-layout dataset
+"""`memslidar import`: real recordings and CVAT 3D cuboids (the formats of io.formats) -> a KITTI-layout dataset
 (io.importer), with the validation report printed."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pcdet_memslidar.commands.options import add_mount_arguments, add_time_unit
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
-from pcdet_memslidar.io.importer import FORMATS, REPORT_NAME, import_dataset
+from pcdet_memslidar.io.importer import REPORT_NAME, import_dataset, import_formats
 
 
 def format_report(report: dict) -> str:
@@ -33,7 +33,7 @@ def format_report(report: dict) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--format", required=True, choices=FORMATS, help="source format")
+    parser.add_argument("--format", required=True, choices=import_formats(), help="source format")
     parser.add_argument("--src", required=True, type=Path,
                         help="a file, a folder of files, or a CVAT export (folder or .zip)")
     parser.add_argument("--out", type=Path, default=Path("data/memslidar/real"),

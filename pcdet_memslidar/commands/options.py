@@ -9,6 +9,7 @@ from pathlib import Path
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground
+from pcdet_memslidar.io.formats import time_unit_clouds
 from pcdet_memslidar.io.pointclouds import TIME_UNITS
 from pcdet_memslidar.runtime.common import default_workers
 from pcdet_memslidar.runtime.experiment import Process, option_count, output_folder, start_process
@@ -63,11 +64,11 @@ def add_mount_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_time_unit(parser: argparse.ArgumentParser) -> None:
-    """--time-unit: the unit of PCD, PLY and NPY clouds' per-point time field (args.time_unit_s: seconds per unit or
-    None)."""
+    """--time-unit: the unit of the per-point time field of clouds whose format does not record it
+    (io.formats.time_unit_clouds) (args.time_unit_s: seconds per unit or None)."""
     parser.add_argument("--time-unit", dest="time_unit_s", type=_time_unit, default=None, metavar="{s,ms,us,ns}",
-                        help="unit of the per-point time field of PCD, PLY and NPY clouds, which those formats do not "
-                             "record (default: their times are not used; .bfpc and KITTI-layout times are)")
+                        help=f"unit of the per-point time field of {time_unit_clouds()} clouds, which those formats "
+                             "do not record (default: their times are not used; .bfpc and KITTI-layout times are)")
 
 
 def _time_unit(text: str) -> float:

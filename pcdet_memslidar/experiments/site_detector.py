@@ -53,7 +53,8 @@ from pcdet_memslidar.experiments.site_classical import choose_settings
 from pcdet_memslidar.experiments.site_report import render_site_report
 from pcdet_memslidar.geometry.background import BackgroundModel
 from pcdet_memslidar.grid import fitted_range, xy_cell_multiple
-from pcdet_memslidar.io.importer import import_frames, list_frames
+from pcdet_memslidar.io.formats import list_frames
+from pcdet_memslidar.io.importer import import_frames
 from pcdet_memslidar.io.kitti import read_points
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models import is_learned

@@ -1,1 +1,2 @@
-"""Readers and writers: KITTI layout, custom layout, Blickfeld .bfpc, PCD / PLY / NPY, CVAT import."""
+"""Readers and writers: KITTI layout, custom layout, Blickfeld .bfpc, PCD / PLY / NPY, CVAT import; the input formats
+that import, detect and site backgrounds read are registered in io.formats."""

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.io.frames import PulseFrame, PulseRecording
 
 # protobuf wire types
 VARINT, FIXED64, LENGTH_DELIMITED, FIXED32 = 0, 1, 2, 5
@@ -323,3 +324,25 @@ def read_bfpc(path: str | Path) -> BfpcRecording:
     if recording is None:
         raise DataFormatError(path, "empty recording: no header message")
     return recording
+
+
+def read_pulses(path: str | Path) -> PulseRecording:
+    """A .bfpc recording as frames of every pulse (each with its strongest return, if any) and its stored scan
+    pattern: what io.formats reads of the format."""
+    path = Path(path)
+    recording = read_bfpc(path)
+    frames = []
+    for index, frame in enumerate(recording.frames):
+        cos_el = np.cos(frame.elevation)
+        directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
+                               np.sin(frame.elevation)], axis=1)
+        strongest = frame.first_returns()
+        points = np.full((frame.num_pulses, 4), np.nan, dtype=np.float32)
+        points[frame.return_pulse[strongest]] = frame.points[strongest]
+        frames.append(PulseFrame(f"{path.name}#{index}", frame.start_time_ns, directions, frame.time_offset, points,
+                                 len(frame.points) - len(strongest)))
+    stored = recording.scan_pattern
+    pattern = None if stored is None else dict(
+        hfov_deg=np.degrees(stored.hfov), vfov_deg=np.degrees(stored.vfov), lines_up=stored.lines_up,
+        lines_down=stored.lines_down, angle_spacing_deg=np.degrees(stored.angle_spacing))
+    return PulseRecording(frames, pattern)

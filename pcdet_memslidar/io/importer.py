@@ -1,7 +1,7 @@
 """Import of real recordings (and their CVAT labels) into a KITTI-layout dataset in the ground frame
 (`memslidar import`).
 
-    list the source frames (lazily: each is read when it is written)
+    list the source frames (lazily: each is read when it is written) with the reader of their format (io.formats)
     -> choose the mount: given (--mount), estimated from the ground plane (--estimate-ground) or none (the clouds
        are already normalised, as the paper's were before annotation)
     -> per frame: normalise points and cuboids, count what needs attention, write it (io.layout.write_frame)
@@ -11,11 +11,10 @@
 """
 from __future__ import annotations
 
+import contextlib
 import json
 from collections import Counter
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -25,82 +24,22 @@ from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import cvat, ground
-from pcdet_memslidar.io.bfpc import read_bfpc
+from pcdet_memslidar.io.formats import FORMATS, list_frames
+from pcdet_memslidar.io.frames import SourceFrame
 from pcdet_memslidar.io.kitti import MIN_BOX_POINTS
 from pcdet_memslidar.io.layout import KittiLayout, write_frame, write_split
-from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
 from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
 from pcdet_memslidar.utils.progress import progress_bar
 
-FORMATS = ("bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw")
-UNTIMED_FORMATS = ("bin",)  # formats without a per-point time field
-SELF_TIMED_FORMATS = ("bfpc", "kitti")  # formats that record their time unit (KITTI layout: training/time_offset [s])
 GROUND_FRAMES = 5  # frames pooled for --estimate-ground (the sensor is static during a recording)
 REPORT_NAME = "import_report.json"
 COMMAND = "memslidar import"  # the owner of the folders it writes (see utils.atomic.atomic_dir)
 
 
-@dataclass
-class SourceFrame:
-    """One frame to import: its name in the source, a loader of its cloud, its cuboids (None: no labels) and its
-    start time [s] since the recording's first frame (None: the format does not say)."""
-
-    name: str
-    load: Callable[[], LoadedCloud]
-    cuboids: cvat.CvatFrame | None = None
-    time_s: float | None = None
-
-
-def _bfpc_frames(src: Path) -> list[SourceFrame]:
-    """Frames of one .bfpc recording or of every .bfpc in a folder, timed from the first one's start; a pulse
-    without return counts as dropped."""
-    frames, first_start_ns = [], None
-    for path in _files(src, ".bfpc"):
-        recording = read_bfpc(path)
-        for index, frame in enumerate(recording.frames):
-            first_start_ns = frame.start_time_ns if first_start_ns is None else first_start_ns
-            strongest = frame.first_returns()
-            cloud = LoadedCloud(points=frame.points[strongest], time=frame.time_offset[frame.return_pulse[strongest]],
-                                dropped=int((~frame.returned).sum()), has_intensity=True, time_unit_s=1.0)
-            frames.append(SourceFrame(f"{path.name}#{index}", lambda cloud=cloud: cloud,
-                                      time_s=(frame.start_time_ns - first_start_ns) * 1e-9))
-    return frames
-
-
-def _files(src: Path, suffix: str) -> list[Path]:
-    """`src` itself, or the files with `suffix` in the folder `src` in natural name order."""
-    if src.is_file():
-        return [src]
-    if not src.is_dir():
-        raise DataFormatError(src, "not found: give a file or a folder of files")
-    files = sorted((p for p in src.iterdir() if p.suffix.lower() == suffix), key=lambda p: cvat.natural_key(p.name))
-    if not files:
-        raise DataFormatError(src, f"no {suffix} files in this folder")
-    return files
-
-
-def check_time_unit(fmt: str, time_unit_s: float | None) -> None:
-    """ConfigError where a time unit is given (--time-unit) for a format that has no time field or records its
-    own unit."""
-    if time_unit_s is not None and fmt in UNTIMED_FORMATS + SELF_TIMED_FORMATS:
-        why = "has no per-point time" if fmt in UNTIMED_FORMATS else "records the unit of its point times"
-        raise ConfigError(f"--time-unit is for PCD, PLY and NPY clouds: format {fmt} {why}; drop --time-unit")
-
-
-def list_frames(fmt: str, src: Path, export_root: Path | None = None, convention: str = "cvat",
-                time_unit_s: float | None = None) -> list[SourceFrame]:
-    """The source frames of `src` in format `fmt` (for CVAT formats, `export_root` is the unpacked export);
-    time_unit_s: seconds per unit of the clouds' time field, for formats that do not record it."""
-    check_time_unit(fmt, time_unit_s)
-    if fmt == "bfpc":
-        return _bfpc_frames(src)
-    if fmt in ("pcd", "ply", "npy", "bin"):
-        return [SourceFrame(path.name, lambda path=path: read_point_cloud(path, time_unit_s))
-                for path in _files(src, "." + fmt)]
-    exported = (cvat.read_sly_export(export_root) if fmt == "cvat-sly"
-                else cvat.read_kitti_raw_export(export_root, convention))
-    return [SourceFrame(frame.name, lambda frame=frame: read_point_cloud(frame.cloud_path, time_unit_s), frame)
-            for frame in exported]
+def import_formats() -> list[str]:
+    """The formats `memslidar import` reads (its --format choices): the registered ones but folder layouts (an
+    import writes one)."""
+    return [name for name, fmt in FORMATS.items() if not fmt.layout]
 
 
 def choose_mount(frames: list[SourceFrame], mount: Mount | None, estimate: bool) -> tuple[Mount | None, dict]:
@@ -191,13 +130,13 @@ def _totals(per_frame: list[dict]) -> dict:
 def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
                    estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
                    point_cloud_range=None, overwrite: bool = True, time_unit_s: float | None = None) -> dict:
-    """Import `src` (format `fmt`, one of FORMATS) into a KITTI-layout dataset at `out`; return the report.
+    """Import `src` (format `fmt`, one of import_formats()) into a KITTI-layout dataset at `out`; return the report.
     point_cloud_range: the range of the report's out-of-range count (default: detector_range()). time_unit_s:
-    seconds per unit of PCD / PLY / NPY time fields (their time offsets are written only with it).
-    `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not be or contain `src`:
-    OutputError otherwise."""
-    if fmt not in FORMATS:
-        raise ConfigError(f"unknown format {fmt!r}; use one of {', '.join(FORMATS)}")
+    seconds per unit of the clouds' time fields where their format does not record it (their time offsets are
+    written only with it). `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not
+    be or contain `src`: OutputError otherwise."""
+    if fmt not in import_formats():
+        raise ConfigError(f"unknown format {fmt!r}; use one of {', '.join(import_formats())}")
     if mount is not None and estimate_ground:
         raise ConfigError("give either a mount or estimate_ground, not both")
     src, out = Path(src), Path(out)
@@ -206,11 +145,7 @@ def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | No
     if not overwrite and out.is_dir() and any(out.iterdir()):
         raise OutputError(f"--out {out} holds an earlier import; pass --overwrite to replace it, or choose a new "
                           "folder")
-    if fmt.startswith("cvat"):
-        with cvat.open_export(src) as root:
-            frames = list_frames(fmt, src, root, convention, time_unit_s)
-            mount, entry = choose_mount(frames, mount, estimate_ground)
-            return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)
-    frames = list_frames(fmt, src, time_unit_s=time_unit_s)
-    mount, entry = choose_mount(frames, mount, estimate_ground)
-    return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)
+    with cvat.open_export(src) if FORMATS[fmt].labelled else contextlib.nullcontext(src) as root:
+        frames = list_frames(fmt, root, time_unit_s, convention)
+        mount, entry = choose_mount(frames, mount, estimate_ground)
+        return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)

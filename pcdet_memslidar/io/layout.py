@@ -11,11 +11,13 @@ Public API:
                        .frame_ids() -> sorted list[str] of the frames with a velodyne file
     write_frame(layout, frame_id, points, names, boxes, metadata, calib=None) -> None
     read_frame(layout, frame_id) -> dict(frame_id, points, gt_names, gt_boxes, metadata, calib)
+    is_layout(folder) -> bool; read_layout_frames(folder) -> list[SourceFrame]: a layout read as a recording
     stable_split(frame_ids, val_fraction=0.3, seed=0) -> (train_ids, val_ids)
     write_split(layout, val_fraction=0.3, seed=0) -> (train_ids, val_ids)
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 from pathlib import Path
@@ -25,6 +27,9 @@ import numpy as np
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io import kitti
+from pcdet_memslidar.io.cvat import natural_key
+from pcdet_memslidar.io.frames import SourceFrame
+from pcdet_memslidar.io.pointclouds import LoadedCloud, cloud_from_fields, read_bin_fields
 from pcdet_memslidar.utils.atomic import write_text
 
 SPLIT_BLOCK = 10  # frames per block of the stable split
@@ -122,6 +127,35 @@ def read_frame(layout: KittiLayout, frame_id: str) -> dict:
             raise DataFormatError(metadata_path, f"invalid JSON ({error.msg})", error.lineno) from None
     return dict(frame_id=frame_id, points=kitti.read_points(layout.velodyne(frame_id)), gt_names=label.name,
                 gt_boxes=kitti.boxes_from_label(label, calib).astype(np.float32), metadata=metadata, calib=calib)
+
+
+def is_layout(folder: Path) -> bool:
+    """Whether `folder` is a KITTI-layout dataset (training/velodyne/ in it) or the training/ folder of one."""
+    return (folder / "training" / "velodyne").is_dir() or (folder / "velodyne").is_dir()
+
+
+def read_layout_frames(folder: Path) -> list[SourceFrame]:
+    """The frames of a KITTI-layout dataset `folder` (or of its training/ folder) in natural name order, read as a
+    recording (io.formats' 'kitti'), each with its points' time offsets [s] where the layout has them
+    (training/time_offset/, as `memslidar simulate` and `import` write)."""
+    velodyne = folder / "training" / "velodyne" if (folder / "training").is_dir() else folder / "velodyne"
+    if not velodyne.is_dir():
+        raise DataFormatError(velodyne, "not found: give a KITTI-layout folder (training/velodyne/*.bin)")
+    files = sorted((p for p in velodyne.iterdir() if p.suffix.lower() == ".bin"), key=lambda p: natural_key(p.name))
+    if not files:
+        raise DataFormatError(velodyne, "no .bin files in this folder")
+    return [SourceFrame(path.name, functools.partial(_read_velodyne, path)) for path in files]
+
+
+def _read_velodyne(path: Path) -> LoadedCloud:
+    """A velodyne file's cloud with the time offsets [s] of ../time_offset/<name> where that file exists, dropped
+    with the invalid points they belong to."""
+    fields = read_bin_fields(path)
+    times = path.parent.parent / "time_offset" / path.name
+    if not times.is_file():
+        return cloud_from_fields(fields, path)
+    return cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, path,
+                             time_unit_s=1.0)
 
 
 def _slot_rank(seed: int, block: int) -> np.ndarray:

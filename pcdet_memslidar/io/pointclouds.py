@@ -1,8 +1,10 @@
 """Point-cloud file readers: PCD (ascii, binary, binary_compressed), PLY (ascii, binary), NPY and KITTI BIN.
 
-Every reader returns a `LoadedCloud`: (N, 4) float32 x, y, z, intensity, the optional per-point time, and how many
-points were dropped because their coordinates are NaN / infinite or all zero (a Blickfeld pulse without return):
-they are removed and counted, never silently. Truncated or malformed files raise DataFormatError naming the file.
+Every reader returns a file's columns by name, which `cloud_from_fields` turns into a `LoadedCloud`: (N, 4) float32
+x, y, z, intensity, the optional per-point time, and how many points were dropped because their coordinates are
+NaN / infinite or all zero (a Blickfeld pulse without return): they are removed and counted, never silently.
+Truncated or malformed files raise DataFormatError naming the file. The readers are registered with their suffixes
+in io.formats, whose read_point_cloud reads a file by its suffix.
 
 PCD and PLY are parsed here (a header plus one numpy view of the body) because the libraries at hand return
 zero-padded or shortened clouds from truncated files without an error; LZF (PCD binary_compressed) is decoded
@@ -17,7 +19,6 @@ import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
 
-SUFFIXES = (".pcd", ".ply", ".npy", ".bin")
 # field names that other tools use for intensity and per-point time, in order of preference
 INTENSITY_FIELDS = ("intensity", "reflectivity", "i", "scalar_intensity", "remission")
 TIME_FIELDS = ("time", "time_offset", "timestamp", "t", "offset_time")
@@ -47,18 +48,6 @@ class LoadedCloud:
         if len(self.time) == 0:
             return np.zeros(0, np.float32)
         return ((self.time - self.time.min()) * self.time_unit_s).astype(np.float32)
-
-
-def read_point_cloud(path: str | Path, time_unit_s: float | None = None) -> LoadedCloud:
-    """Read a .pcd, .ply, .npy or .bin (KITTI float32 x, y, z, intensity) file; time_unit_s: seconds per unit of
-    its time field, which these formats do not record (None: the times have no unit, so no time offsets)."""
-    path = Path(path)
-    readers = {".pcd": read_pcd_fields, ".ply": read_ply_fields, ".npy": read_npy_fields, ".bin": read_bin_fields}
-    if path.suffix.lower() not in readers:
-        raise DataFormatError(path, f"unknown point-cloud suffix {path.suffix!r}; use one of {', '.join(SUFFIXES)}")
-    if not path.is_file():
-        raise DataFormatError(path, "file not found")
-    return cloud_from_fields(readers[path.suffix.lower()](path), path, time_unit_s)
 
 
 def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path, time_unit_s: float | None = None

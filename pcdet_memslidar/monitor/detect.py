@@ -1,7 +1,7 @@
 """`memslidar detect`: a trained detector on recordings, with tracks and zone events (OpenPCDet's demo.py, for
 industrial safety).
 
-    list the recording's frames (io.importer's readers: .bfpc, .pcd, .ply, .npy, .bin, or a KITTI-layout folder)
+    list the recording's frames (the readers of io.formats; --format auto: a folder layout or the files' suffix)
     -> the mount: given, estimated from the ground plane, or none (frames already in the ground frame)
     -> per frame, with a config that names the site's background model (DATA_CONFIG.BACKGROUND_MODEL): is the
        sensor still where it was? (monitor.background_watch: realigns a turned sensor, reports a changed site)
@@ -30,8 +30,9 @@ from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
-from pcdet_memslidar.io.importer import SourceFrame, check_time_unit, choose_mount, list_frames
-from pcdet_memslidar.io.pointclouds import SUFFIXES, LoadedCloud, cloud_from_fields, read_bin_fields
+from pcdet_memslidar.io.formats import FORMATS, format_of, list_frames
+from pcdet_memslidar.io.frames import SourceFrame
+from pcdet_memslidar.io.importer import choose_mount
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.background_watch import BackgroundWatch
@@ -45,7 +46,6 @@ from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse
 from pcdet_memslidar.utils.progress import progress_bar
 
 COMMAND = "memslidar detect"  # the owner of the folders it writes (utils.atomic.atomic_dir)
-FORMATS = ("auto", "bfpc", "pcd", "ply", "npy", "bin", "kitti")
 FRAME_PERIOD_S = get_pattern("cube1_paper").frame_period_s  # time between frames of formats without time stamps
 DETECTIONS_FILE, SUMMARY_FILE = "detections.jsonl", "summary.json"
 STAGES = ("read", "voxelise", "infer", "track", "write")
@@ -69,46 +69,23 @@ class DetectOptions:
     save_points: bool = False
     plot: bool = False
     precision: str = PRECISIONS[0]  # inference precision of the BEV backbone and head (models.detector.PRECISIONS)
-    time_unit_s: float | None = None  # seconds per unit of PCD / PLY / NPY time fields (None: their times unused)
+    time_unit_s: float | None = None  # seconds per unit of time fields whose format does not record it (None: unused)
+
+
+def detect_formats() -> list[str]:
+    """The --format choices of `memslidar detect`: 'auto' (resolve_format) and the registered formats but annotation
+    exports (detect reads recordings, not labels)."""
+    return ["auto", *(name for name, fmt in FORMATS.items() if not fmt.labelled)]
 
 
 def resolve_format(src: Path, fmt: str) -> str:
-    """The format of `src` ('auto': a KITTI layout, or the suffix of the file or of the folder's files)."""
+    """The format of `src` ('auto': a folder layout, or the suffix of the file or of the folder's files)."""
     if fmt != "auto":
         return fmt
-    if src.is_dir() and ((src / "training" / "velodyne").is_dir() or (src / "velodyne").is_dir()):
-        return "kitti"
-    files = [src] if src.is_file() else sorted(p for p in src.iterdir() if p.is_file()) if src.is_dir() else []
     if not src.exists():
         raise DataFormatError(src, "not found: give a recording file or a folder of frames (--src)")
-    suffixes = {p.suffix.lower() for p in files} & {".bfpc", *SUFFIXES}
-    if len(suffixes) != 1:
-        found = ", ".join(sorted({p.suffix or "(none)" for p in files})) or "nothing"
-        raise DataFormatError(src, f"cannot tell the format (found {found}): pass --format, one of "
-                                   f"{', '.join(FORMATS[1:])}")
-    return suffixes.pop()[1:]
-
-
-def recording_frames(src: Path, fmt: str, time_unit_s: float | None = None) -> list[SourceFrame]:
-    """The frames of `src` in format `fmt` (FORMATS but 'auto': see resolve_format) in recording order;
-    time_unit_s: seconds per unit of PCD / PLY / NPY time fields."""
-    check_time_unit(fmt, time_unit_s)
-    if fmt == "kitti":
-        velodyne = src / "training" / "velodyne" if (src / "training").is_dir() else src / "velodyne"
-        return [SourceFrame(frame.name, lambda path=velodyne / frame.name: _read_kitti_frame(path))
-                for frame in list_frames("bin", velodyne)]
-    return list_frames(fmt, src, time_unit_s=time_unit_s)
-
-
-def _read_kitti_frame(velodyne: Path) -> LoadedCloud:
-    """A KITTI-layout frame, with its points' time offsets [s] where the folder has them (../time_offset/, as
-    `memslidar simulate` and `import` write), dropped with the invalid points they belong to."""
-    fields = read_bin_fields(velodyne)
-    times = velodyne.parent.parent / "time_offset" / velodyne.name
-    if not times.is_file():
-        return cloud_from_fields(fields, velodyne)
-    return cloud_from_fields({**fields, "time_offset": kitti.read_point_times(times, len(fields["x"]))}, velodyne,
-                             time_unit_s=1.0)
+    names = detect_formats()[1:]
+    return format_of(src, [FORMATS[name] for name in names], f"pass --format, one of {', '.join(names)}").name
 
 
 class FrameVoxeliser(DatasetTemplate):
@@ -155,7 +132,7 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     refuse_overlap(out, [src], "--out")
     check_output_folder(out, COMMAND)
     fmt = resolve_format(src, options.fmt)
-    frames = recording_frames(src, fmt, options.time_unit_s)
+    frames = list_frames(fmt, src, options.time_unit_s)
     if not frames:
         raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)

@@ -3,9 +3,9 @@
 For a static sensor a recording of the empty site says, per pulse, where the beam ends (or that it returns
 nothing). Per output frame:
 1. take a background frame (the recording's frames in turn) and its pulses: direction and time from the recording
-   (.bfpc lists every pulse, with or without a return), or, for point-cloud files, each return along its own
-   direction at the time of the site's scan-pattern pulse nearest to it, and the pattern's other pulses as pulses
-   without a return;
+   where its format carries every pulse, with or without a return (io.formats: .bfpc), or, for formats of returns
+   only (point-cloud files), each return along its own direction at the time of the site's scan-pattern pulse
+   nearest to it, and the pattern's other pulses as pulses without a return;
 2. place the site's distractors (objects that are not people, sim/distractors.py), then people, on the walkable
    floor, clear of what the background shows standing on it (`obstacle_cells`); people also walk around the
    distractors;
@@ -34,9 +34,7 @@ import pcdet_memslidar
 from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground
-from pcdet_memslidar.io.bfpc import read_bfpc
-from pcdet_memslidar.io.cvat import natural_key
-from pcdet_memslidar.io.pointclouds import SUFFIXES, read_point_cloud
+from pcdet_memslidar.io.formats import InputFormat, format_files, list_frames, read_point_cloud
 from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
 from pcdet_memslidar.sim.caster import Caster, FrameHits
 from pcdet_memslidar.sim.distractors import Distractor, cast_distractors, footprints, frame_distractors
@@ -46,7 +44,7 @@ from pcdet_memslidar.sim.pattern import PATTERNS, ScanPattern, get_pattern
 from pcdet_memslidar.sim.people import Person, sample_people
 from pcdet_memslidar.sim.scenes import Scene
 from pcdet_memslidar.sim.sensor import SensorModel, get_sensor
-from pcdet_memslidar.sim.site import Background, Site
+from pcdet_memslidar.sim.site import Background, Site, background_format
 
 OBSTACLE_CELL_M = 0.25  # cells of the floor grid in which the background shows something people cannot walk through
 OBSTACLE_HEIGHT_M = (0.2, 1.8)  # returns between these heights above the floor make a cell an obstacle
@@ -78,12 +76,11 @@ class BackgroundFrame:
         return np.isfinite(self.range)
 
 
-def _pattern_check(path: Path, stored, pattern: ScanPattern) -> None:
-    """DataFormatError naming the fix when a .bfpc recording's stored scan pattern is not the site's."""
-    if stored is None:
+def _pattern_check(path: Path, recorded: dict[str, float] | None, pattern: ScanPattern) -> None:
+    """DataFormatError naming the fix when the scan pattern a recording stores (io.frames.PulseRecording.pattern)
+    is not the site's."""
+    if recorded is None:
         return
-    recorded = dict(hfov_deg=np.degrees(stored.hfov), vfov_deg=np.degrees(stored.vfov), lines_up=stored.lines_up,
-                    lines_down=stored.lines_down, angle_spacing_deg=np.degrees(stored.angle_spacing))
     differs = [key for key, value in recorded.items() if abs(value - getattr(pattern, key)) > 1e-3]
     if differs:
         match = next((name for name, preset in PATTERNS.items()
@@ -94,37 +91,26 @@ def _pattern_check(path: Path, stored, pattern: ScanPattern) -> None:
                                     f"{', '.join(differs)} differ): {fix} in the site file")
 
 
-def _bfpc_frames(path: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
-    recording = read_bfpc(path)
-    _pattern_check(path, recording.scan_pattern, pattern)
-    frames, first_ns = [], recording.frames[0].start_time_ns if recording.frames else 0
-    for index, frame in enumerate(recording.frames):
-        cos_el = np.cos(frame.elevation)
-        directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
-                               np.sin(frame.elevation)], axis=1)
-        strongest = frame.first_returns()
-        pulse = frame.return_pulse[strongest]
-        points = np.full((frame.num_pulses, 4), np.nan, dtype=np.float32)
-        points[pulse] = frame.points[strongest]
-        ranges = np.full(frame.num_pulses, np.inf)
-        ranges[pulse] = np.linalg.norm(frame.points[strongest, :3].astype(np.float64), axis=1)
-        frames.append(BackgroundFrame(f"{path.name}#{index}", directions, frame.time_offset, ranges, points,
-                                      (frame.start_time_ns - first_ns) * 1e-9, len(frame.points) - len(strongest)))
-    return frames
+def _pulse_frames(fmt: InputFormat, files: list[Path], pattern: ScanPattern) -> list[BackgroundFrame]:
+    """Frames of a format that carries every pulse: each pulse's direction, time and strongest return as recorded,
+    timed from the first frame's start."""
+    frames = []
+    for path in files:
+        recording = fmt.read_pulses(path)
+        _pattern_check(path, recording.pattern, pattern)
+        frames += recording.frames
+    background = []
+    for frame in frames:
+        ranges = np.where(frame.returned, np.linalg.norm(frame.points[:, :3].astype(np.float64), axis=1), np.inf)
+        background.append(BackgroundFrame(frame.name, frame.directions, frame.time_offset, ranges, frame.points,
+                                          (frame.start_time_ns - frames[0].start_time_ns) * 1e-9, frame.unmatched))
+    return background
 
 
-def cloud_files(folder: Path) -> list[Path]:
-    """The point-cloud frames (SUFFIXES) of a background folder in natural name order; DataFormatError if none."""
-    files = sorted((p for p in folder.iterdir() if p.suffix.lower() in SUFFIXES), key=lambda p: natural_key(p.name))
-    if not files:
-        raise DataFormatError(folder, f"no {', '.join(SUFFIXES)} frames in this background folder")
-    return files
-
-
-def _cloud_frames(folder: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
-    """Frames of point-cloud files. Each return is a pulse along its own direction, at the time of the pattern's
-    pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a return."""
-    files = cloud_files(folder)
+def _cloud_frames(files: list[Path], pattern: ScanPattern) -> list[BackgroundFrame]:
+    """Frames of point-cloud files (returns only). Each return is a pulse along its own direction, at the time of
+    the pattern's pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a
+    return."""
     directions, time_offset, _ = pattern.pulses()
     tree, spacing = cKDTree(directions), np.radians(pattern.angle_spacing_deg)
     frames = []
@@ -150,10 +136,12 @@ def _cloud_frames(folder: Path, pattern: ScanPattern) -> list[BackgroundFrame]:
 
 @functools.lru_cache(maxsize=4)
 def read_background(background: Background, pattern: str | ScanPattern) -> tuple[BackgroundFrame, ...]:
-    """The frames background.frames (first, stop) of a background recording (.bfpc file or folder of point
-    clouds), per pulse; DataFormatError naming the file and fix when it does not fit the site's `pattern`."""
+    """The frames background.frames (first, stop) of a background recording (sim.site.background_format), per
+    pulse; DataFormatError naming the file and fix when it does not fit the site's `pattern`."""
     path, pattern = Path(background.recording), get_pattern(pattern)
-    frames = _bfpc_frames(path, pattern) if path.is_file() else _cloud_frames(path, pattern)
+    fmt = background_format(path)
+    files = format_files(path, fmt)
+    frames = _pulse_frames(fmt, files, pattern) if fmt.pulses else _cloud_frames(files, pattern)
     first, stop = background.frames or (0, len(frames))
     if stop > len(frames) or not frames:
         raise DataFormatError(path, f"background.frames [{first}, {stop}) asks for more than its {len(frames)} "
@@ -164,9 +152,8 @@ def read_background(background: Background, pattern: str | ScanPattern) -> tuple
 def recording_sha256(background: Background) -> str:
     """sha256 of the recording's bytes (its files in name order for a folder): part of a site's fingerprint."""
     path = Path(background.recording)
-    files = [path] if path.is_file() else cloud_files(path)
     digest = hashlib.sha256()
-    for file in files:
+    for file in format_files(path, background_format(path)):
         digest.update(file.name.encode() + file.read_bytes())
     return digest.hexdigest()
 
@@ -176,11 +163,7 @@ def recording_points(background: Background, frames: int = 5) -> np.ndarray:
     estimated from."""
     path = Path(background.recording)
     first = background.frames[0] if background.frames else 0
-    if path.is_file():
-        recording = read_bfpc(path).frames[first:first + frames]
-        clouds = [frame.points[frame.first_returns()] for frame in recording]
-    else:
-        clouds = [read_point_cloud(file).points for file in cloud_files(path)[first:first + frames]]
+    clouds = [frame.load().points for frame in list_frames(background_format(path).name, path)[first:first + frames]]
     if not clouds:
         raise DataFormatError(path, "holds no frames to estimate the mount from")
     return np.concatenate(clouds)

@@ -28,9 +28,10 @@ import numpy as np
 import yaml
 
 from pcdet_memslidar.config import CONFIG_DIR, YamlLoader, parse_yaml
-from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.geometry.polygon import points_in_polygon
+from pcdet_memslidar.io.formats import InputFormat, file_formats, format_of
 from pcdet_memslidar.sim.motion import BEHAVIOURS
 from pcdet_memslidar.sim.pattern import FRAME_MODES, PATTERNS, PULSE_TYPES, ScanPattern, get_pattern
 from pcdet_memslidar.sim.scenes import MATERIALS, PRIMITIVES, SCENES, SceneSpec
@@ -38,7 +39,6 @@ from pcdet_memslidar.sim.sensor import SENSORS
 
 SITES_DIR = CONFIG_DIR / "sites"
 BUNDLED_SITES = ("sim", "real", "industrial")
-BACKGROUND_FORMATS = (".bfpc", ".pcd", ".ply", ".npy", ".bin")
 LODS = ("fine", "coarse")
 
 
@@ -52,7 +52,8 @@ class Viewpoint:
 
 @dataclass(frozen=True)
 class Background:
-    """A recording of the empty site: a .bfpc file or a folder of .pcd / .ply / .npy / .bin frames (sensor frame).
+    """A recording of the empty site in the sensor frame: a file or a folder of frames of one format
+    (background_format).
 
     frames: (first, stop) indices of the recording's frames to use (None: all)."""
 
@@ -327,21 +328,30 @@ def _walkable(file: _SiteFile, node, key: str) -> tuple[tuple[float, float], ...
 def _background(file: _SiteFile, node, key: str) -> Background:
     fields = file.mapping(node, key, _KEYS["background"])
     if "recording" not in fields:
-        raise file.error(node, key, "a background needs `recording`: a .bfpc file or a folder of frames")
+        raise file.error(node, key, "a background needs `recording`: a recording file or a folder of frames")
     recording = Path(str(file.value(fields["recording"]))).expanduser()
     recording = recording if recording.is_absolute() else (file.path.resolve().parent / recording).resolve()
     if not recording.exists():
         raise file.error(fields["recording"], f"{key}.recording", f"{recording} does not exist; give the path of the "
                                                                    f"recording (relative to the site file)")
-    if recording.is_file() and recording.suffix.lower() not in BACKGROUND_FORMATS:
-        raise file.error(fields["recording"], f"{key}.recording", f"{recording.name}: a background is one of "
-                                                                   f"{', '.join(BACKGROUND_FORMATS)}")
+    try:
+        background_format(recording)
+    except DataFormatError as error:
+        raise file.error(fields["recording"], f"{key}.recording", str(error)) from None
     frames = None
     if "frames" in fields:
         frames = file.numbers(fields["frames"], f"{key}.frames", 2, 0, 10 ** 7, integer=True)
         if frames[0] >= frames[1]:
             raise file.error(fields["frames"], f"{key}.frames", f"{list(frames)}: give [first, stop) with first < stop")
     return Background(str(recording), frames)
+
+
+def background_format(recording: Path) -> InputFormat:
+    """The format of a background recording: a file, or a folder of frames, of a format read from files
+    (io.formats.file_formats); DataFormatError naming the recording and the formats otherwise."""
+    formats = file_formats()
+    suffixes = ", ".join(suffix for fmt in formats for suffix in fmt.suffixes)
+    return format_of(recording, formats, f"a background is a file or a folder of frames of one format: {suffixes}")
 
 
 def load_site(path: str | Path, estimate_mount=None) -> Site:

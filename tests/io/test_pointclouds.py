@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.pointclouds import LoadedCloud, read_point_cloud
+from pcdet_memslidar.io.formats import read_point_cloud
+from pcdet_memslidar.io.pointclouds import LoadedCloud
 from pcdet_memslidar.utils.open3d import import_open3d
 
 

@@ -11,9 +11,10 @@ import pytest
 from pcdet_memslidar import cli
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.io.formats import list_frames
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.models import build_network
-from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect, recording_frames
+from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 
 REPO_CFG = "cfgs/m3.yaml"
@@ -111,7 +112,7 @@ def test_a_kitti_folder_gives_its_time_offsets_with_its_valid_points(tmp_path):
     times = np.array([0.1, 0.2, 0.3, 0.35], np.float32)  # the all-zero point is dropped on reading, with its time
     write_frame(layout, "000000", points, [], np.zeros((0, 7)), {}, time_offset=times)
     write_frame(layout, "000001", points[:2], [], np.zeros((0, 7)), {})  # no time offsets
-    timed, untimed = (frame.load() for frame in recording_frames(tmp_path / "sim", "kitti"))
+    timed, untimed = (frame.load() for frame in list_frames("kitti", tmp_path / "sim"))
     assert timed.dropped == 1 and timed.time_offsets().tolist() == pytest.approx([0.0, 0.1, 0.25])
     assert untimed.time_offsets() is None and len(untimed.points) == 2
 
@@ -204,11 +205,11 @@ def test_a_frame_period_that_is_not_a_finite_positive_number_is_refused_in_one_l
 def test_a_time_unit_times_the_frames_of_a_folder_and_is_refused_for_a_kitti_layout(tmp_path, smoke_checkpoint):
     (tmp_path / "npy").mkdir()
     np.save(tmp_path / "npy" / "0.npy", np.array([[5.0, 0.0, 1.0, 3.0, 1e9], [6.0, 0.0, 1.0, 4.0, 1.1e9]]))  # [ns]
-    frame, = recording_frames(tmp_path / "npy", "npy", time_unit_s=1e-9)
+    frame, = list_frames("npy", tmp_path / "npy", time_unit_s=1e-9)
     np.testing.assert_array_equal(frame.load().time_offsets(), np.array([0.0, 0.1], np.float32))
-    assert recording_frames(tmp_path / "npy", "npy")[0].load().time_offsets() is None
+    assert list_frames("npy", tmp_path / "npy")[0].load().time_offsets() is None
     assert cli.main(["detect", "--cfg", REPO_CFG, "--profile", "smoke", "--ckpt", str(smoke_checkpoint), "--src",
                      str(tmp_path / "npy"), "--time-unit", "ns", "--out", str(tmp_path / "out")]) == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["frames_with_point_times"] == 1
     with pytest.raises(ConfigError, match="format kitti records the unit of its point times; drop --time-unit"):
-        recording_frames(tmp_path, "kitti", time_unit_s=1e-9)
+        list_frames("kitti", tmp_path, time_unit_s=1e-9)

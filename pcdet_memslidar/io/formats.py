@@ -1,0 +1,203 @@
+"""The input formats: one registry of what each format is and how its frames are read.
+
+`memslidar import` (io.importer), `memslidar detect` (monitor.detect), site backgrounds (sim.site) and compositing
+(sim.composite) take their lists of formats and their readers from FORMATS. A format is read in one of four ways:
+
+    read_fields   a point cloud per file -> its (N,) columns by name (x, y, z, intensity, time: see
+                  io.pointclouds.cloud_from_fields): .pcd, .ply, .npy, .bin; returns only
+    read_pulses   a recording per file -> frames of every pulse of the scan pattern, with or without a return: .bfpc
+    read_layout   a folder layout -> its frames (with is_layout telling such a folder): the KITTI layout
+    read_export   an unpacked annotation export and a box convention -> its labelled frames: CVAT's
+
+Adding a format is a module with its reader and one line at the end of this file:
+
+    register_format(InputFormat("xyz", (".xyz",), read_fields=read_xyz_fields, timed=False))
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.io import bfpc, cvat, layout, pointclouds
+from pcdet_memslidar.io.frames import PulseRecording, SourceFrame
+from pcdet_memslidar.io.pointclouds import LoadedCloud, cloud_from_fields
+
+
+@dataclass(frozen=True)
+class InputFormat:
+    """One input format: name (the value of --format), suffixes (lower-case file suffixes with the dot; none for a
+    folder layout or an export), exactly one reader (module docstring), whether its points have a per-point time
+    (timed) and whether it records the unit of those times (self_timed: --time-unit does not apply)."""
+
+    name: str
+    suffixes: tuple[str, ...] = ()
+    read_fields: Callable[[Path], dict[str, np.ndarray]] | None = None
+    read_pulses: Callable[[Path], PulseRecording] | None = None
+    read_layout: Callable[[Path], list[SourceFrame]] | None = None
+    is_layout: Callable[[Path], bool] | None = None
+    read_export: Callable[[Path, str], list[cvat.CvatFrame]] | None = None
+    timed: bool = True
+    self_timed: bool = False
+
+    def __post_init__(self):
+        readers = [self.read_fields, self.read_pulses, self.read_layout, self.read_export]
+        if sum(reader is not None for reader in readers) != 1:
+            raise ValueError(f"format {self.name!r}: give exactly one of read_fields, read_pulses, read_layout, "
+                             "read_export")
+        if (self.read_layout is None) != (self.is_layout is None):
+            raise ValueError(f"format {self.name!r}: a folder layout needs both read_layout and is_layout")
+        if bool(self.suffixes) != (self.read_fields is not None or self.read_pulses is not None):
+            raise ValueError(f"format {self.name!r}: a format of files has suffixes, a layout or an export none")
+        if any(not suffix.startswith(".") or suffix != suffix.lower() for suffix in self.suffixes):
+            raise ValueError(f"format {self.name!r}: give suffixes in lower case with the dot, e.g. '.pcd'")
+
+    @property
+    def pulses(self) -> bool:
+        """Whether it carries every pulse of the scan pattern, with or without a return (else returns only)."""
+        return self.read_pulses is not None
+
+    @property
+    def layout(self) -> bool:
+        """Whether it is a folder layout."""
+        return self.read_layout is not None
+
+    @property
+    def labelled(self) -> bool:
+        """Whether it is an annotation export: its frames come with cuboids."""
+        return self.read_export is not None
+
+
+FORMATS: dict[str, InputFormat] = {}  # name -> format, in registration order (the order of the --format choices)
+
+
+def register_format(fmt: InputFormat) -> InputFormat:
+    """Add `fmt` to FORMATS; ValueError where its name or one of its suffixes is a registered format's."""
+    if fmt.name in FORMATS:
+        raise ValueError(f"format {fmt.name!r} is registered already: choose another name")
+    for other in FORMATS.values():
+        shared = sorted(set(other.suffixes) & set(fmt.suffixes))
+        if shared:
+            raise ValueError(f"format {fmt.name!r}: suffix {shared[0]} belongs to format {other.name!r}: choose "
+                             "another")
+    FORMATS[fmt.name] = fmt
+    return fmt
+
+
+def get_format(name: str) -> InputFormat:
+    """The registered format `name`; ConfigError naming the registered ones otherwise."""
+    if name not in FORMATS:
+        raise ConfigError(f"unknown format {name!r}; use one of {', '.join(FORMATS)}")
+    return FORMATS[name]
+
+
+def file_formats() -> list[InputFormat]:
+    """The formats read from files by their suffix (a point cloud or a recording per file)."""
+    return [fmt for fmt in FORMATS.values() if fmt.suffixes]
+
+
+def format_of(src: Path, formats: Iterable[InputFormat], fix: str) -> InputFormat:
+    """The one of `formats` that `src` is in: a folder layout (is_layout), else the format of the file's suffix or
+    of the suffixes of the folder's files; DataFormatError naming what was found and `fix` otherwise."""
+    formats = list(formats)
+    folder_layout = next((fmt for fmt in formats if fmt.layout and src.is_dir() and fmt.is_layout(src)), None)
+    if folder_layout is not None:
+        return folder_layout
+    files = [src] if src.is_file() else sorted(p for p in src.iterdir() if p.is_file()) if src.is_dir() else []
+    found = {fmt.name: fmt for fmt in formats for path in files if path.suffix.lower() in fmt.suffixes}
+    if len(found) != 1:
+        seen = ", ".join(sorted({path.suffix or "(none)" for path in files})) or "nothing"
+        raise DataFormatError(src, f"cannot tell the format (found {seen}): {fix}")
+    return found.popitem()[1]
+
+
+def format_files(src: Path, fmt: InputFormat) -> list[Path]:
+    """`src` itself, or the files with a suffix of `fmt` in the folder `src` in natural name order."""
+    if src.is_file():
+        return [src]
+    if not src.is_dir():
+        raise DataFormatError(src, "not found: give a file or a folder of files")
+    files = sorted((p for p in src.iterdir() if p.suffix.lower() in fmt.suffixes),
+                   key=lambda p: cvat.natural_key(p.name))
+    if not files:
+        raise DataFormatError(src, f"no {' / '.join(fmt.suffixes)} files in this folder")
+    return files
+
+
+def read_point_cloud(path: str | Path, time_unit_s: float | None = None) -> LoadedCloud:
+    """The cloud of a file of a format with one point cloud per file (read_fields), chosen by its suffix;
+    time_unit_s: seconds per unit of its time field, which these formats do not record (None: the times have no
+    unit, so no time offsets)."""
+    path = Path(path)
+    clouds = [fmt for fmt in FORMATS.values() if fmt.read_fields is not None]
+    fmt = next((fmt for fmt in clouds if path.suffix.lower() in fmt.suffixes), None)
+    if fmt is None:
+        suffixes = ", ".join(suffix for fmt in clouds for suffix in fmt.suffixes)
+        raise DataFormatError(path, f"unknown point-cloud suffix {path.suffix!r}; use one of {suffixes}")
+    if not path.is_file():
+        raise DataFormatError(path, "file not found")
+    return cloud_from_fields(fmt.read_fields(path), path, time_unit_s)
+
+
+def time_unit_clouds() -> str:
+    """The point-cloud formats whose per-point times need --time-unit (timed, unit not recorded) as text, e.g.
+    'PCD, PLY and NPY'."""
+    names = [fmt.name.upper() for fmt in FORMATS.values() if fmt.read_fields and fmt.timed and not fmt.self_timed]
+    return ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else "".join(names)
+
+
+def check_time_unit(fmt: str, time_unit_s: float | None) -> None:
+    """ConfigError where a time unit is given (--time-unit) for a format that has no time field or records its
+    own unit."""
+    format_ = get_format(fmt)
+    if time_unit_s is not None and (not format_.timed or format_.self_timed):
+        why = "has no per-point time" if not format_.timed else "records the unit of its point times"
+        raise ConfigError(f"--time-unit is for {time_unit_clouds()} clouds: format {fmt} {why}; drop --time-unit")
+
+
+def list_frames(fmt: str, src: str | Path, time_unit_s: float | None = None, convention: str = "cvat"
+                ) -> list[SourceFrame]:
+    """The frames of `src` in format `fmt` (a name in FORMATS) in recording order. For an annotation export `src`
+    is the unpacked export (cvat.open_export) and `convention` its box convention (cvat.read_kitti_raw_export);
+    time_unit_s: seconds per unit of the clouds' time field, for formats that do not record it."""
+    check_time_unit(fmt, time_unit_s)
+    format_, src = get_format(fmt), Path(src)
+    if format_.layout:
+        return format_.read_layout(src)
+    if format_.labelled:
+        return [SourceFrame(frame.name, functools.partial(read_point_cloud, frame.cloud_path, time_unit_s), frame)
+                for frame in format_.read_export(src, convention)]
+    files = format_files(src, format_)
+    if format_.pulses:
+        return _pulse_source_frames(format_, files)
+    return [SourceFrame(path.name, functools.partial(read_point_cloud, path, time_unit_s)) for path in files]
+
+
+def _pulse_source_frames(fmt: InputFormat, files: list[Path]) -> list[SourceFrame]:
+    """The frames of the recordings `files` as their strongest returns with their pulses' times [s], timed from the
+    first frame's start; a pulse without return counts as dropped."""
+    frames, first_ns = [], None
+    for path in files:
+        for frame in fmt.read_pulses(path).frames:
+            first_ns = frame.start_time_ns if first_ns is None else first_ns
+            returned = frame.returned
+            cloud = LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
+                                dropped=int((~returned).sum()), has_intensity=True, time_unit_s=1.0)
+            frames.append(SourceFrame(frame.name, lambda cloud=cloud: cloud,
+                                      time_s=(frame.start_time_ns - first_ns) * 1e-9))
+    return frames
+
+
+register_format(InputFormat("bfpc", (".bfpc",), read_pulses=bfpc.read_pulses, self_timed=True))
+register_format(InputFormat("pcd", (".pcd",), read_fields=pointclouds.read_pcd_fields))
+register_format(InputFormat("ply", (".ply",), read_fields=pointclouds.read_ply_fields))
+register_format(InputFormat("npy", (".npy",), read_fields=pointclouds.read_npy_fields))
+register_format(InputFormat("bin", (".bin",), read_fields=pointclouds.read_bin_fields, timed=False))
+register_format(InputFormat("kitti", read_layout=layout.read_layout_frames, is_layout=layout.is_layout,
+                            self_timed=True))  # time offsets [s] in training/time_offset/
+register_format(InputFormat("cvat-sly", read_export=lambda root, convention: cvat.read_sly_export(root)))
+register_format(InputFormat("cvat-kitti-raw", read_export=cvat.read_kitti_raw_export))

@@ -1,0 +1,50 @@
+"""What the readers of input formats (io.formats) yield: frames to load, and frames of every pulse."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from pcdet_memslidar.io.cvat import CvatFrame
+from pcdet_memslidar.io.pointclouds import LoadedCloud
+
+
+@dataclass
+class SourceFrame:
+    """One frame of a recording: its name in the source, a loader of its cloud, its cuboids (None: no labels) and its
+    start time [s] since the recording's first frame (None: the format does not say)."""
+
+    name: str
+    load: Callable[[], LoadedCloud]
+    cuboids: CvatFrame | None = None
+    time_s: float | None = None
+
+
+@dataclass(frozen=True)
+class PulseFrame:
+    """One frame of every pulse of the scan pattern, with or without a return (P pulses, sensor frame, KITTI axes):
+    directions (P, 3) unit vectors, time_offset (P,) [s] from the frame start, points (P, 4) float32 x, y, z,
+    intensity of each pulse's strongest return (nan: none); start_time_ns [ns] of the frame; unmatched: weaker
+    returns left out; name: '<file>#<frame>'."""
+
+    name: str
+    start_time_ns: int
+    directions: np.ndarray
+    time_offset: np.ndarray
+    points: np.ndarray
+    unmatched: int = 0
+
+    @property
+    def returned(self) -> np.ndarray:
+        """(P,) bool: pulses with a return."""
+        return ~np.isnan(self.points[:, 0])
+
+
+@dataclass(frozen=True)
+class PulseRecording:
+    """One file of a format that carries pulses: its frames, and the scan pattern it records (hfov_deg, vfov_deg
+    [deg], lines_up, lines_down, angle_spacing_deg [deg]; None: not recorded)."""
+
+    frames: list[PulseFrame]
+    pattern: dict[str, float] | None = None
