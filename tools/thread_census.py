@@ -5,7 +5,7 @@
 Runs one training step (forward and backward, batch of 2 frames, random weights, seed 0) and repeats every torch op
 of it on one thread, on copies of the same inputs, comparing the two results bit for bit. An op listed here is why a
 training step cannot take fewer threads when other processes need the cores without changing its results
-(docs/results.md#speed-under-load). The sparse convolutions are numba and torch matrix products on their own thread
+(docs/benchmarks.md#speed-under-load). The sparse convolutions are numba and torch matrix products on their own thread
 count (models.rulebook) and are not listed. Which ops differ depends on their shapes and data, so two steps may
 list different ones.
 """

@@ -34,8 +34,8 @@ def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: s
 class VoxelBackBone8x(nn.Module):
     """Sparse convs 16-32-64-64 channels, 8x downsampling, then a (3,1,1) z-conv to 128 channels.
 
-    On a CPU models.rulebook runs the convs in inference, and in training on more than one torch thread (the quick
-    SECOND's training step: 0.78x spconv's on two threads, 1.12x on one; docs/results.md#training-speed);
+    On a CPU models.rulebook runs the convs in inference, and in training on more than one torch thread (where it is
+    the faster: docs/benchmarks.md#training-speed);
     otherwise spconv runs them, on one torch thread on a CPU (its CPU kernels race with more, see spconv_cpu). In
     training the rulebook's convs take only the cores other processes leave free at each step (their results do not
     depend on the thread count), as inference does through runtime.common.threads_giving_way.

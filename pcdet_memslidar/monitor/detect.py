@@ -49,8 +49,8 @@ COMMAND = "memslidar detect"  # the owner of the folders it writes (utils.atomic
 FRAME_PERIOD_S = get_pattern("cube1_paper").frame_period_s  # time between frames of formats without time stamps
 DETECTIONS_FILE, SUMMARY_FILE = "detections.jsonl", "summary.json"
 STAGES = ("read", "voxelise", "infer", "track", "write")
-# frames per forward pass by device type: on a CPU one frame at a time is fastest per frame (measured: docs/results.md,
-# "Detect speed"); batches fill a GPU
+# frames per forward pass by device type: on a CPU one frame at a time is fastest per frame (measured:
+# docs/benchmarks.md#detect-speed); batches fill a GPU
 BATCH_SIZE = {"cpu": 1, "cuda": 4}
 
 
