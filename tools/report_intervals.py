@@ -1,5 +1,5 @@
 """Bootstrap intervals for a finished reproduction: read its results.json, add the intervals of every AP and of the
-differences between models (experiments.report.add_intervals) and write results.json and report.md to --out.
+differences between models (experiments.results.add_intervals) and write results.json and report.md to --out.
 
     python tools/report_intervals.py output/reproduce/quick --out /tmp/quick_intervals [--gt DIR] [--resamples N]
 
@@ -14,7 +14,8 @@ import sys
 from pathlib import Path
 
 from pcdet_memslidar.evaluation.bootstrap import LEVEL, RESAMPLES, SEED
-from pcdet_memslidar.experiments.report import add_intervals, write_report
+from pcdet_memslidar.experiments.report import write_report
+from pcdet_memslidar.experiments.results import add_intervals
 from pcdet_memslidar.io.layout import KittiLayout
 
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.config import load_config
-from pcdet_memslidar.experiments.report import score_run
+from pcdet_memslidar.experiments.results import score_run
 from pcdet_memslidar.geometry.background import turn_about_vertical
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout, write_frame

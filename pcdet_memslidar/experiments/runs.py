@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.experiments.report import HEADLINE, json_safe, score_run
+from pcdet_memslidar.experiments.results import HEADLINE, json_safe, score_run
 from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder

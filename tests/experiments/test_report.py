@@ -8,17 +8,19 @@ import pytest
 
 from pcdet_memslidar.config import load_config, profile_settings
 from pcdet_memslidar.experiments.report import (
-    add_intervals,
-    counterpart,
-    gain_over_reference,
     order_statement,
     orientation_bin_table,
     render_report,
-    score_run,
-    summarise_runs,
     table2,
     table3,
     write_report,
+)
+from pcdet_memslidar.experiments.results import (
+    add_intervals,
+    counterpart,
+    gain_over_reference,
+    score_run,
+    summarise_runs,
 )
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io.kitti import label_from_boxes, write_label
