@@ -121,8 +121,8 @@ class SensorModel:
 
     def detection_probability(self, range_m: np.ndarray, cos_abs: np.ndarray, reflectivity: np.ndarray
                               ) -> np.ndarray:
-        """(P,) probability that the received power of a hit is above the detector threshold (numpy: its vector
-        log and tanh are several times faster than a compiled loop's scalar ones)."""
+        """(P,) probability that the received power of a hit is above the detector threshold (in numpy, for its
+        vector log and tanh rather than a compiled loop's scalar ones)."""
         if self.power_threshold <= 0:
             return np.ones_like(range_m)
         with np.errstate(divide="ignore"):
