@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .boxes import check_boxes
+from pcdet_memslidar.geometry.boxes import check_boxes
 
 _TOLERANCE = 1e-9  # parallel / on-the-line tolerance, relative to the larger box side of the pair
 # Corners of the unit footprint, counter-clockwise.
