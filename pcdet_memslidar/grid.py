@@ -20,8 +20,8 @@ import math
 
 import numpy as np
 
-from .errors import ConfigError
-from .geometry.boxes import FOLDS
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.geometry.boxes import FOLDS
 
 SPARSE_STRIDE = 8  # VoxelBackBone8x's downsampling in x and y
 SPARSE_OUTPUT_CHANNELS = 128  # VoxelBackBone8x's output channels, stacked per output z cell by HeightCompression

@@ -28,10 +28,10 @@ from pathlib import Path
 
 import torch
 
-from .config import apply_profile, cfg_from_yaml_file
-from .errors import ConfigError, DataFormatError
-from .grid import check_config_grid
-from .runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint, trained_on
+from pcdet_memslidar.config import apply_profile, cfg_from_yaml_file
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.grid import check_config_grid
+from pcdet_memslidar.runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint, trained_on
 
 USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
 
@@ -46,7 +46,7 @@ def register() -> None:
                           f"checkout: `python setup.py develop`), or use the standalone tools (tools/train.py, "
                           f"`memslidar train`)") from error
 
-    from .datasets import MEMSLidarDataset
+    from pcdet_memslidar.datasets import MEMSLidarDataset
 
     pcdet.datasets.__all__["MEMSLidarDataset"] = MEMSLidarDataset
     if not getattr(pcdet.config.cfg_from_list, "memslidar", False):

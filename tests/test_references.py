@@ -11,9 +11,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 MARKDOWN = sorted(path for pattern in ("*.md", "docs/*.md", "data/README.md", "examples/*.md",
-                                       "pcdet_memslidar/assets/*/README.md", "tests/assets/*/README.md")
+                                       "pcdet_memslidar/assets/*/README.md", "tests/assets/*/README.md",
+                                       "tools/*/README.md")
                   for path in REPO.glob(pattern))
-TEXT = sorted([*MARKDOWN, *REPO.glob("pcdet_memslidar/**/*.py"), *REPO.glob("tools/*.py"),
+TEXT = sorted([*MARKDOWN, *REPO.glob("pcdet_memslidar/**/*.py"), *REPO.glob("tools/**/*.py"),
                *REPO.glob("tests/**/*.py"), *REPO.glob("cfgs/**/*.yaml"), *REPO.glob("examples/*.yaml"),
                REPO / "run.sh", REPO / "pyproject.toml", REPO / "setup.py"])
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")

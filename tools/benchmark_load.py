@@ -51,8 +51,8 @@ def measure(args) -> dict:
     and `test` do) and over training steps (threads fixed: the training's results depend on them)."""
     import numpy as np
     import torch
-    from benchmark_model import frames_for, time_train_step
 
+    from benchmark_model import frames_for, time_train_step
     from pcdet_memslidar.config import load_config
     from pcdet_memslidar.models import build_network, load_data_to_device
     from pcdet_memslidar.runtime.common import get_device, set_random_seed, threads_giving_way

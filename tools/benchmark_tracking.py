@@ -6,14 +6,15 @@ tracking, and frames/s end to end (read, normalise, voxelise, infer, track, writ
         --ckpt output/reproduce/quick/models/oracle/seed_0/ckpt/checkpoint_epoch_2.pth
 
 Sequences: `memslidar simulate --domain industrial --sequence LENGTH --seed S`, S = SEED_BASE, SEED_BASE + 1, ...
-(kept in --out/sequences). Tracking: evaluation.tracking (motmetrics; a box within 0.5 m of a person's BEV centre).
+(kept in --out/sequences). Tracking: tracking_metrics.py beside this script (motmetrics; a box within 0.5 m of a
+person's BEV centre).
 AP 3D R40 at IoU 0.5 of the detections detect keeps (score >= TRACKER.MIN_SCORE), all of them and those of confirmed
 tracks only, at each --precisions entry (the inference precision of the BEV backbone and head: what bf16 costs in
 AP and tracking). Speed: the checkpoint, then an untrained SECOND of each --speed-profiles entry at each precision
 (the paper profile cannot be trained on a CPU; the weights change the time only through the boxes NMS gets) over the
 first sequence, next to each profile's compute floor: the FLOPs of one forward pass on its first frame over this
-machine's fp32 GEMM rate (utils.compute), the least ms/frame any fp32 implementation of that model needs on these
-threads.
+machine's fp32 GEMM rate (compute_floor.py beside this script), the least ms/frame any fp32 implementation of that
+model needs on these threads.
 Results: Markdown on stdout, JSON in --out/tracking_benchmark.json.
 """
 from __future__ import annotations
@@ -26,10 +27,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from compute_floor import floor_ms, forward_flops, gemm_flops_per_s  # beside this script
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.evaluation.folders import evaluate_folders
 from pcdet_memslidar.evaluation.metrics import ap_summary
-from pcdet_memslidar.evaluation.tracking import mot_metrics, sequence_truth
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout
@@ -40,8 +41,8 @@ from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import SETTINGS_FILE, simulate_sequence_dataset
 from pcdet_memslidar.utils.atomic import write_text
-from pcdet_memslidar.utils.compute import floor_ms, forward_flops, gemm_flops_per_s
 from pcdet_memslidar.utils.cores import available_cores
+from tracking_metrics import mot_metrics, sequence_truth
 
 SEED_BASE = 1000  # sequence seeds: far from the datasets' seeds (0, 1)
 

@@ -68,7 +68,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2, help="torch threads to compare with one (default 2)")
     args = parser.parse_args(argv)
     from benchmark_model import frames_for
-
     from pcdet_memslidar.config import load_config
     from pcdet_memslidar.models import build_network, load_data_to_device
     from pcdet_memslidar.runtime.common import set_random_seed

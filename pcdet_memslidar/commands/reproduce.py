@@ -10,8 +10,8 @@ from pathlib import Path
 
 from pcdet_memslidar.commands.options import add_experiment_arguments, add_profile, add_set, experiment_command
 from pcdet_memslidar.config import cfg as global_cfg
-from pcdet_memslidar.experiments.report import HEADLINE
 from pcdet_memslidar.experiments.reproduce import KNOWN_RUNS, PAPER_HEAD, RUNS, head_configs, reproduce
+from pcdet_memslidar.experiments.results import HEADLINE
 
 BENCHMARK_RESULTS = Path("output/benchmark/model_benchmark.json")  # tools/benchmark_model.py's, relative to the repo
 

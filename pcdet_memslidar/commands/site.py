@@ -19,7 +19,7 @@ from pcdet_memslidar.commands.options import add_profile, add_set
 from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_ground_check
-from pcdet_memslidar.experiments.report import HEADLINE
+from pcdet_memslidar.experiments.results import HEADLINE
 from pcdet_memslidar.experiments.site_detector import SITE_DETECTORS, SitePlan, site_extent, train_site
 from pcdet_memslidar.experiments.site_report import NAMES
 from pcdet_memslidar.sim.composite import estimate_background_mount, recording_points

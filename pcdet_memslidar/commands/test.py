@@ -17,7 +17,7 @@ from pcdet_memslidar.commands.options import add_openpcdet_arguments, add_precis
 from pcdet_memslidar.config import log_config_to_file
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.diagnose import extent_agreement, format_diagnosis, part_ablation
-from pcdet_memslidar.experiments.report import json_safe
+from pcdet_memslidar.experiments.results import json_safe
 from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.runtime.checkpoint import checkpoint_epoch, list_checkpoints
 from pcdet_memslidar.runtime.common import create_logger

@@ -7,10 +7,10 @@ from __future__ import annotations
 import torch
 from torch.utils.data import DataLoader, DistributedSampler
 
-from ..errors import ConfigError
-from .dataset import DatasetTemplate
-from .memslidar_dataset import MEMSLidarDataset
-from .mixing import MixedBatchSampler
+from pcdet_memslidar.datasets.dataset import DatasetTemplate
+from pcdet_memslidar.datasets.memslidar_dataset import MEMSLidarDataset
+from pcdet_memslidar.datasets.mixing import MixedBatchSampler
+from pcdet_memslidar.errors import ConfigError
 
 DATASETS = {"DatasetTemplate": DatasetTemplate, "MEMSLidarDataset": MEMSLidarDataset}
 

@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import ConfigError, DataFormatError, OutputError
-from ..geometry.background import BackgroundModel
-from .processor import DataProcessor, PointFeatureEncoder, take_points
+from pcdet_memslidar.datasets.processor import DataProcessor, PointFeatureEncoder, take_points
+from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
+from pcdet_memslidar.geometry.background import BackgroundModel
 
 USER_ERRORS = (DataFormatError, ConfigError, OutputError)  # the errors whose message names the file and the fix
 BACKGROUND_FEATURE = "background_depth"  # a src feature computed from the site's background model, not stored

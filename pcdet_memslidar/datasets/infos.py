@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFormatError
-from ..geometry.boxes import points_in_boxes_mask
-from ..io.layout import KittiLayout, read_frame
-from ..utils.atomic import OWNER_FILE, atomic_dir, check_output_folder, mark_output, write_bytes
-from ..utils.progress import progress_bar
-from .mixing import Source, make_frames_command
+from pcdet_memslidar.datasets.mixing import Source, make_frames_command
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.geometry.boxes import points_in_boxes_mask
+from pcdet_memslidar.io.layout import KittiLayout, read_frame
+from pcdet_memslidar.utils.atomic import OWNER_FILE, atomic_dir, check_output_folder, mark_output, write_bytes
+from pcdet_memslidar.utils.progress import progress_bar
 
 INFO_FILE = "memslidar_infos.pkl"
 DBINFO_FILE = "memslidar_dbinfos.pkl"

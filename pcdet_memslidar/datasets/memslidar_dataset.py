@@ -11,14 +11,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFormatError
-from ..geometry.calibration import Calibration
-from ..io import kitti
-from ..io.layout import KittiLayout
-from .augmentor import DataAugmentor, GtDatabase
-from .dataset import DatasetTemplate
-from .infos import load_db_infos, load_domain_infos
-from .mixing import make_frames_command, source_split, split_sources
+from pcdet_memslidar.datasets.augmentor import DataAugmentor, GtDatabase
+from pcdet_memslidar.datasets.dataset import DatasetTemplate
+from pcdet_memslidar.datasets.infos import load_db_infos, load_domain_infos
+from pcdet_memslidar.datasets.mixing import make_frames_command, source_split, split_sources
+from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.geometry.calibration import Calibration
+from pcdet_memslidar.io import kitti
+from pcdet_memslidar.io.layout import KittiLayout
 
 MAX_REPLACEMENTS = 100  # training frames left without boxes are replaced by random others, at most this often
 
@@ -158,7 +158,7 @@ class MEMSLidarDataset(*_template_bases()):
         Returns (a table per class, {key: float}) with the evaluator's keys (AP3D_R40, ..., num_gt, num_dt),
         prefixed with '<class>/' when there is more than one class.
         """
-        from ..evaluation import evaluate, format_results
+        from pcdet_memslidar.evaluation import evaluate, format_results
         gt_annos, dt_annos = self.aligned_annos(det_annos)
         texts, scalars = [], {}
         for class_name in class_names:

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..errors import ConfigError, DataFormatError
-from ..io.layout import stable_split
-from ..sim.site import BUNDLED_SITES
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.io.layout import stable_split
+from pcdet_memslidar.sim.site import BUNDLED_SITES
 
 BUNDLED_DOMAINS = BUNDLED_SITES
 

@@ -8,11 +8,11 @@ from __future__ import annotations
 import numpy as np
 from torch.utils.data import Dataset
 
-from ..geometry.boxes import rotate_points_along_z
-from ..grid import grid_size
-from ..io.kitti import CLASS_NAME
-from .dataset import DatasetTemplate
-from .processor.data_processor import VoxelGenerator
+from pcdet_memslidar.datasets.dataset import DatasetTemplate
+from pcdet_memslidar.datasets.processor.data_processor import VoxelGenerator
+from pcdet_memslidar.geometry.boxes import rotate_points_along_z
+from pcdet_memslidar.grid import grid_size
+from pcdet_memslidar.io.kitti import CLASS_NAME
 
 
 def person_points(box: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:

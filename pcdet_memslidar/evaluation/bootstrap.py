@@ -16,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pcdet_memslidar.evaluation.average_precision import RECALL_POSITIONS, interpolated_ap, precision_recall_curve
+from pcdet_memslidar.evaluation.metrics import match_annos
 from pcdet_memslidar.io.kitti import CLASS_NAME
-
-from .average_precision import RECALL_POSITIONS, interpolated_ap, precision_recall_curve
-from .metrics import match_annos
 
 RESAMPLES = 1000
 LEVEL = 0.95

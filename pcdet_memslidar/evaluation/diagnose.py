@@ -17,11 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from pcdet_memslidar.evaluation.matching import pair_ious
+from pcdet_memslidar.evaluation.metrics import DISTANCE_BINS, bin_label, evaluate, stack_class
 from pcdet_memslidar.geometry.boxes import fold_box_headings
 from pcdet_memslidar.io.kitti import CLASS_NAME
-
-from .matching import pair_ious
-from .metrics import DISTANCE_BINS, bin_label, evaluate, stack_class
 
 MIN_BEV_IOU = 0.1  # a detection overlapping no ground truth this much is a false positive: left as it is
 SCORE_THRESHOLD = 0.3  # extent_agreement looks at detections at least this confident

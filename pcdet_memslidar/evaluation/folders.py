@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.evaluation.metrics import evaluate
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io.kitti import (
     CLASS_NAME,
@@ -23,8 +24,6 @@ from pcdet_memslidar.io.kitti import (
     object_line,
     read_label,
 )
-
-from .metrics import evaluate
 
 
 def read_label_folder(folder: Path, with_score: bool) -> dict[str, dict]:

@@ -17,11 +17,10 @@ import warnings
 
 import numpy as np
 
+from pcdet_memslidar.evaluation.average_precision import interpolated_ap, precision_recall_curve
+from pcdet_memslidar.evaluation.matching import greedy_match, pair_ious
 from pcdet_memslidar.geometry.boxes import check_boxes
 from pcdet_memslidar.io.kitti import CLASS_NAME
-
-from .average_precision import interpolated_ap, precision_recall_curve
-from .matching import greedy_match, pair_ious
 
 DISTANCE_BINS = ((0.0, 10.0), (10.0, 20.0), (20.0, float("inf")))  # [m], lower bound included
 

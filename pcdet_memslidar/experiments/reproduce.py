@@ -13,7 +13,7 @@ The story, one stage per line (each stage's wall time goes into the report):
    in its own process on its share of the cores: on a CPU the sparse convolutions use one thread, so several
    one-thread trainings make better use of the cores than one training on all of them;
 4. AP of the saved prediction labels against the industrial ground truth with bootstrap intervals over the test
-   frames, figures, results.json and report.md in the output folder (experiments.report);
+   frames, figures, results.json and report.md in the output folder (experiments.results, experiments.report);
 5. the untouched seed: every run's final checkpoint also predicts an industrial split simulated with
    FINAL_TEST_SEED (<DATA_PATH>/<test>_final), scored for one table of the report and nothing else: no selection
    rule, tool or analysis reads it (a test split that is looked at while choosing settings stops being unseen).
@@ -40,14 +40,8 @@ from pcdet_memslidar.datasets.mixing import (
     split_sources,
 )
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.experiments.report import (
-    add_figures,
-    add_intervals,
-    environment,
-    model_entry,
-    score_run,
-    write_report,
-)
+from pcdet_memslidar.experiments.report import write_report
+from pcdet_memslidar.experiments.results import add_figures, add_intervals, environment, model_entry, score_run
 from pcdet_memslidar.experiments.runs import StageClock, check_run_options, run_jobs, runs_at_once, training_jobs
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.models.detector import DENSE_HEADS

@@ -20,7 +20,7 @@ from pathlib import Path
 import torch
 
 from pcdet_memslidar.errors import ConfigError
-from pcdet_memslidar.experiments.report import HEADLINE, json_safe, score_run
+from pcdet_memslidar.experiments.results import HEADLINE, json_safe, score_run
 from pcdet_memslidar.models import is_learned
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
@@ -184,9 +184,9 @@ class StageClock:
 
 
 def default_jobs(models: int) -> int:
-    """Models trained at once: on a CPU the `models` models of a seed, one thread each (two cores train five
-    one-thread processes at 95 % of the throughput of two, measured, and no core idles while a last model trains
-    alone); one on a GPU."""
+    """Models trained at once: on a CPU the `models` models of a seed, one thread each, so that they share the cores
+    and no core idles while a last model trains alone (a step's time on one and two threads:
+    docs/benchmarks.md#training-speed); one on a GPU."""
     return 1 if torch.cuda.is_available() else max(available_cores(), models)
 
 

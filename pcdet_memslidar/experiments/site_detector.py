@@ -47,7 +47,8 @@ from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.bootstrap import ap_interval, frame_matches
 from pcdet_memslidar.evaluation.figures import plot_frames
 from pcdet_memslidar.evaluation.folders import read_label_folder
-from pcdet_memslidar.experiments.report import environment, frame_predictions, json_safe, score_run, write_report
+from pcdet_memslidar.experiments.report import write_report
+from pcdet_memslidar.experiments.results import environment, frame_predictions, json_safe, score_run
 from pcdet_memslidar.experiments.runs import RUN_CONFIG, RUN_FILE, StageClock, run_jobs, run_model
 from pcdet_memslidar.experiments.site_classical import choose_settings
 from pcdet_memslidar.experiments.site_report import render_site_report

@@ -25,8 +25,9 @@ from pcdet_memslidar.config import profile_settings
 from pcdet_memslidar.datasets.mixing import source_counts
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_sweep
-from pcdet_memslidar.experiments.report import HEADLINE, ap_text, environment, json_safe, summarise_runs, write_report
+from pcdet_memslidar.experiments.report import ap_text, write_report
 from pcdet_memslidar.experiments.reproduce import RUNS, frames_needed, model_config, prepare_data
+from pcdet_memslidar.experiments.results import HEADLINE, environment, json_safe, summarise_runs
 from pcdet_memslidar.experiments.runs import StageClock, check_run_options, run_jobs, runs_at_once, training_jobs
 from pcdet_memslidar.io.layout import KittiLayout
 from pcdet_memslidar.runtime.common import create_logger

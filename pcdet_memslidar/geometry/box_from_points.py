@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boxes import check_boxes, points_in_boxes_mask
+from pcdet_memslidar.geometry.boxes import check_boxes, points_in_boxes_mask
 
 MAX_SHIFTS = 5  # a box's window follows the mean of its points at most this often
 SHIFT_TOLERANCE = 0.01  # [m] a window that would move less than this has found its points

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .calibration import Calibration
+from pcdet_memslidar.geometry.calibration import Calibration
 
 # Unit-box corners, OpenPCDet order: bottom face (z = -1/2) 0-3, then the top face 4-7 above them.
 _CORNER_SIGNS = np.array([

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .iou import aligned_iou_torch, near_pairs
+from pcdet_memslidar.geometry.iou import aligned_iou_torch, near_pairs
 
 
 def nms_rotated(boxes: torch.Tensor, scores: torch.Tensor, iou_threshold: float,

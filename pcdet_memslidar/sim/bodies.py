@@ -1,6 +1,6 @@
 """The body bank: articulated human bodies as rigid parts posed by per-part transforms.
 
-assets/body_bank.npz (built by tools/build_body_bank.py from the anny body model) holds 12 adult body shapes,
+assets/body_bank.npz (built by tools/research/build_body_bank.py from the anny body model) holds 12 adult body shapes,
 4 mesh detail levels ('coarse' 734, 'medium' 1226, 'fine' 2454, 'full' 24540 triangles) and, per shape, one rigid
 transform per body part for GAIT_PHASES phases of a walking cycle plus one standing pose. A pose between two
 bank entries is a linear blend of their transforms (gait phase and walk <-> stand); the blend is near-rigid for

@@ -1,6 +1,7 @@
 """Keep freed memory in the process: the simulator's numpy work allocates and frees tens of MB of temporaries
 per frame. With glibc's defaults, large blocks are unmapped or trimmed when freed and page-faulted in again (and
-zeroed by the kernel) on the next use, which on a small VM costs 2-7x the arithmetic done on them."""
+zeroed by the kernel) on the next use; keeping them skips that work (the simulator's timings:
+docs/benchmarks.md#simulator-speed)."""
 from __future__ import annotations
 
 import ctypes

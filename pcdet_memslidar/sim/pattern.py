@@ -9,8 +9,8 @@ odd lines right -> left above it). The beam leaves the mirror pair at
     elevation = asin(sin(psi) cos(theta))          (the vertical mirror pitches the horizontal fan)
 k couples the two axes and makes the eye-shaped field of view asymmetric: upper lines are wider in azimuth, so
 the equal-azimuth pulse grid reaches their ends at a larger vertical deflection than the lower lines'. Pulses fire
-at equal azimuth steps inside +-hFoV / 2. `recording_stats.fit_pattern` fits A_H, k, the ramp lead and f to a real
-recording; on the Cube 1 recording the model's directions are within 0.08 deg (az) / 0.11 deg (el) rms.
+at equal azimuth steps inside +-hFoV / 2. fit_pattern (tools/research/recording_stats.py) fits A_H, k, the ramp lead
+and f to a real recording; on the Cube 1 recording the model's directions are within 0.08 deg (az) / 0.11 deg (el) rms.
 """
 from __future__ import annotations
 

@@ -6,10 +6,10 @@ beam footprint (sampled with `beam_divergence_rad`), that surface's range. It re
 intensity as the device reports it (integers 0-511) and a mask of pulses that produced a return.
 
 Presets (`get_sensor`):
-- 'calibrated': fitted on the real Cube 1 recording in pcdet_memslidar/assets/blickfeld (see `recording_stats`):
-  Gaussian range noise whose sigma grows slowly with range (median about 0.8 cm), mixed pixels at edges,
-  dropout = base rate + soft received-power threshold, intensity = reflectivity x |cos incidence| nearly flat
-  with range, minimum and maximum range.
+- 'calibrated': fitted on the real Cube 1 recording in pcdet_memslidar/assets/blickfeld
+  (tools/research/recording_stats.py): Gaussian range noise whose sigma grows slowly with range (median about
+  0.8 cm), mixed pixels at edges, dropout = base rate + soft received-power threshold, intensity = reflectivity x
+  |cos incidence| nearly flat with range, minimum and maximum range.
 - 'carla': the paper's CARLA pipeline (Berens et al. 2022): 5 % of the returns dropped uniformly, range scaled by
   1 + N(0, 0.005), intensity 511 exp(-0.004 d) (CARLA's ray-cast LiDAR), no edge effects.
 """
@@ -121,8 +121,8 @@ class SensorModel:
 
     def detection_probability(self, range_m: np.ndarray, cos_abs: np.ndarray, reflectivity: np.ndarray
                               ) -> np.ndarray:
-        """(P,) probability that the received power of a hit is above the detector threshold (numpy: its vector
-        log and tanh are several times faster than a compiled loop's scalar ones)."""
+        """(P,) probability that the received power of a hit is above the detector threshold (in numpy, for its
+        vector log and tanh rather than a compiled loop's scalar ones)."""
         if self.power_threshold <= 0:
             return np.ones_like(range_m)
         with np.errstate(divide="ignore"):

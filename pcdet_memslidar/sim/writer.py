@@ -175,7 +175,7 @@ def simulate_dataset(site: Site, frames: int, out: str | Path, seed: int = 0, wo
     if workers > 1 and count > 1:
         pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_start_worker)
     else:  # frames in threads: their compiled loops, large numpy operations and file writes run outside
-        # Python's interpreter lock (Open3D's cast_rays and the Python parts do not: 1.4x one core, not 2x)
+        # Python's interpreter lock (Open3D's cast_rays and the Python parts do not: docs/benchmarks.md#simulator-speed)
         pool = ThreadPoolExecutor(FRAME_THREADS)
     with pool, progress_bar(total=count, desc=f"simulate {site.name}", unit="frame", enabled=progress) as bar:
         for points_of_frame in bounded_map(pool, _write_one, jobs, ahead=4 * max(workers, FRAME_THREADS)):

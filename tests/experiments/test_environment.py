@@ -4,7 +4,8 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.experiments.report import VECTOR_EXTENSIONS, environment, run_header
+from pcdet_memslidar.experiments.report import run_header
+from pcdet_memslidar.experiments.results import VECTOR_EXTENSIONS, environment
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -8,23 +8,25 @@ import pytest
 
 from pcdet_memslidar.config import load_config, profile_settings
 from pcdet_memslidar.experiments.report import (
-    add_intervals,
-    counterpart,
-    gain_over_reference,
     order_statement,
     orientation_bin_table,
     render_report,
-    score_run,
-    summarise_runs,
     table2,
     table3,
     write_report,
+)
+from pcdet_memslidar.experiments.results import (
+    add_intervals,
+    counterpart,
+    gain_over_reference,
+    score_run,
+    summarise_runs,
 )
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.io.kitti import label_from_boxes, write_label
 
 CFGS = Path(__file__).resolve().parents[2] / "cfgs"
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "report_intervals.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "research" / "report_intervals.py"
 
 
 def make_results(ap: dict, seeds=(0,), std=0.0):
@@ -204,7 +206,7 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
                        "| 1.010 [1.000, 1.000] | 1.020 [1.000, 1.000] | 1.030 [1.000, 1.000] | n/a | 120.0 |")
     assert rows[2].startswith("| M1 | SECOND | 0.500 [0.000, 1.000] | 0.10 | +0.0 | +0.0 | -50.0 [-100.0, +0.0] |")
 
-    # tools/report_intervals.py does the same for a written report, into another folder
+    # tools/research/report_intervals.py does the same for a written report, into another folder
     write_report(make_results({"M1": 0.5, "M2": 0.5, "M3": 1.0, "M4": 0.5, "oracle": 1.0}) | {
         "models": {name: {key: value for key, value in model.items() if "interval" not in key}
                    for name, model in models.items()}}, tmp_path)

@@ -1,4 +1,5 @@
-"""The Cube 1 scan pattern model against its definition and against the real recording."""
+"""The Cube 1 scan pattern model against its definition (against the real recording:
+tests/tools/test_recording_stats.py)."""
 import dataclasses
 
 import numpy as np
@@ -6,12 +7,6 @@ import pytest
 
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.sim.pattern import get_pattern
-from pcdet_memslidar.sim.recording_stats import ENVELOPE_AZIMUTHS_DEG, fit_pattern, pattern_stats, recording_stats
-
-
-@pytest.fixture(scope="module")
-def real_stats(real_bfpc):
-    return recording_stats(real_bfpc)
 
 
 def test_paper_pattern_size_and_timing():
@@ -26,33 +21,6 @@ def test_paper_pattern_size_and_timing():
     assert np.abs(azimuth).max() == pytest.approx(35.8, abs=1e-4)  # clipped straight at +-hFoV/2
     elevation = np.rad2deg(np.arcsin(directions[:, 2]))
     assert elevation.max() < 15.5 and elevation.min() > -15.5 and elevation.max() > 14.5
-
-
-def test_recording_pattern_matches_real_recording(real_stats):
-    model = pattern_stats(get_pattern("cube1_2020"))
-    assert abs(model["pulses_per_frame"] - real_stats["pulses_per_frame"]) <= 0.02 * real_stats["pulses_per_frame"]
-    assert model["frame_period_s"] == pytest.approx(real_stats["frame_period_s"], rel=1e-3)
-    for azimuth in ENVELOPE_AZIMUTHS_DEG:
-        np.testing.assert_allclose(model["envelope"][azimuth], real_stats["envelope"][azimuth], atol=1.0,
-                                   err_msg=f"elevation envelope at |azimuth| = {azimuth} deg")
-
-
-def test_symmetric_ellipse_misses_the_real_envelope(real_stats):
-    symmetric = dataclasses.replace(get_pattern("cube1_2020"), keystone_per_rad=0.0)
-    model = pattern_stats(symmetric)["envelope"][35.0]
-    assert abs(model[0] - real_stats["envelope"][35.0][0]) > 1.0  # the keystone term is what makes it fit
-
-
-def test_fit_pattern_recovers_the_preset_from_a_plain_start(real_bfpc):
-    preset = get_pattern("cube1_2020")
-    start = dataclasses.replace(preset, horizontal_swing_deg=80.0, keystone_per_rad=0.0, ramp_lead_lines=0.0,
-                                mirror_frequency_hz=148.0)
-    fitted, error = fit_pattern(real_bfpc, start)
-    assert fitted.horizontal_swing_deg == pytest.approx(preset.horizontal_swing_deg, abs=0.05)
-    assert fitted.keystone_per_rad == pytest.approx(preset.keystone_per_rad, abs=0.01)
-    assert fitted.ramp_lead_lines == pytest.approx(preset.ramp_lead_lines, abs=0.01)
-    assert fitted.mirror_frequency_hz == pytest.approx(preset.mirror_frequency_hz, abs=0.01)
-    assert error["rms_azimuth_deg"] < 0.1 and error["rms_elevation_deg"] < 0.15
 
 
 def test_frame_modes_and_interleave():

@@ -1,23 +1,15 @@
-"""tools/box_from_points.py: the main axis of a person's points against its labelled long side, the depth of its
-centre behind them, and how they drift over the frame."""
-import importlib.util
-from pathlib import Path
-
+"""tools/research/box_from_points.py: the main axis of a person's points against its labelled long side, the depth
+of its centre behind them, and how they drift over the frame."""
 import numpy as np
 import pytest
 
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.utils.atomic import write_bytes
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "box_from_points.py"
-
 
 @pytest.fixture(scope="module")
-def tool():
-    spec = importlib.util.spec_from_file_location("box_from_points", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def tool(load_tool):
+    return load_tool("research/box_from_points.py")
 
 
 def test_people_filled_with_points_show_their_long_side_and_centre(tool, memslidar_data, capsys):

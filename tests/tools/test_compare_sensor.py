@@ -1,14 +1,8 @@
-"""tools/compare_sensor.py: the calibrated preset next to the real recording, as a table and a figure."""
-import importlib.util
-from pathlib import Path
-
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "compare_sensor.py"
+"""tools/research/compare_sensor.py: the calibrated preset next to the real recording, as a table and a figure."""
 
 
-def test_table_and_figure(tmp_path, real_recording, capsys):
-    spec = importlib.util.spec_from_file_location("compare_sensor", TOOL)
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+def test_table_and_figure(tmp_path, real_recording, capsys, load_tool):
+    tool = load_tool("research/compare_sensor.py")
     assert tool.main([str(real_recording), "--frames", "8", "--out", str(tmp_path / "fig.png")]) == 0
     rows = {line.split("|")[0].strip(): [cell.strip() for cell in line.split("|")[1:]]
             for line in capsys.readouterr().out.splitlines() if "|" in line}

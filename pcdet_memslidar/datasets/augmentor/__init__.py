@@ -1,5 +1,5 @@
 """Training augmentations: gt_sampling, world flip / rotation / scaling."""
-from .data_augmentor import DataAugmentor
-from .database_sampler import DataBaseSampler, GtDatabase
+from pcdet_memslidar.datasets.augmentor.data_augmentor import DataAugmentor
+from pcdet_memslidar.datasets.augmentor.database_sampler import DataBaseSampler, GtDatabase
 
 __all__ = ["DataAugmentor", "DataBaseSampler", "GtDatabase"]

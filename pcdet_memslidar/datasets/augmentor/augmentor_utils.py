@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...geometry.boxes import rotate_points_along_z
+from pcdet_memslidar.geometry.boxes import rotate_points_along_z
 
 
 def random_flip_along_x(gt_boxes: np.ndarray, points: np.ndarray, rng: np.random.Generator,

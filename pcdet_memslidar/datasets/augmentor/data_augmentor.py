@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import ConfigError
-from ...geometry.boxes import limit_period
-from . import augmentor_utils
-from .database_sampler import DataBaseSampler, GtDatabase
+from pcdet_memslidar.datasets.augmentor import augmentor_utils
+from pcdet_memslidar.datasets.augmentor.database_sampler import DataBaseSampler, GtDatabase
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.geometry.boxes import limit_period
 
 
 class DataAugmentor:

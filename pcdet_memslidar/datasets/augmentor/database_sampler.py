@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import ConfigError, DataFormatError
-from ...geometry.boxes import enlarge_box3d, points_in_boxes_mask
-from ...geometry.iou import boxes_iou_bev
+from pcdet_memslidar.errors import ConfigError, DataFormatError
+from pcdet_memslidar.geometry.boxes import enlarge_box3d, points_in_boxes_mask
+from pcdet_memslidar.geometry.iou import boxes_iou_bev
 
 
 @dataclass

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ...errors import ConfigError
-from ...geometry.boxes import FOLDS, boxes_to_corners_3d, fold_box_headings
-from ...grid import grid_size
+from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.geometry.boxes import FOLDS, boxes_to_corners_3d, fold_box_headings
+from pcdet_memslidar.grid import grid_size
 
 
 def mask_points_by_range(points: np.ndarray, limit_range: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import ConfigError
+from pcdet_memslidar.errors import ConfigError
 
 
 class PointFeatureEncoder:

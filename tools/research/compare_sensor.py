@@ -1,12 +1,12 @@
 """Calibration check: a sensor preset's statistics side by side with those of a real Blickfeld recording.
 
-    python tools/compare_sensor.py REAL.bfpc [--frames N] [--sensor calibrated|carla] [--pattern cube1_2020]
-                                   [--out fig.png] [--seed 0]
+    python tools/research/compare_sensor.py REAL.bfpc [--frames N] [--sensor calibrated|carla]
+        [--pattern cube1_2020] [--out fig.png] [--seed 0]
 
-Both columns are measured by the same function (sim.recording_stats.measure). The simulated column lets the
-sensor preset look at the recording's own static scene (recording_stats.replay: per pulse the mean measured
-range, an albedo from the median intensity and the edges between neighbouring pulses) for as many frames as the
-recording has; pulses per frame, frame period and the FoV envelope come from the scan-pattern preset. Prints a
+Both columns are measured by the same function (recording_stats.measure, beside this script). The simulated
+column lets the sensor preset look at the recording's own static scene (recording_stats.replay: per pulse the mean
+measured range, an albedo from the median intensity and the edges between neighbouring pulses) for as many frames as
+the recording has; pulses per frame, frame period and the FoV envelope come from the scan-pattern preset. Prints a
 table and writes a figure (FoV, range noise, intensity, returns per frame).
 """
 from __future__ import annotations
@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+import recording_stats as rs  # beside this script
 from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.io.bfpc import read_bfpc
-from pcdet_memslidar.sim import recording_stats as rs
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.sensor import get_sensor
 

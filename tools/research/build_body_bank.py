@@ -1,7 +1,7 @@
 """Build pcdet_memslidar/assets/body_bank.npz, the bank of posed human bodies the simulator ships with.
 
 Run once (needs `pip install anny`, which is not a runtime dependency; its first load builds a ~1 GB cache and
-takes minutes):  python tools/build_body_bank.py [--out pcdet_memslidar/assets/body_bank.npz]
+takes minutes):  python tools/research/build_body_bank.py [--out pcdet_memslidar/assets/body_bank.npz]
 
 The bank holds, for 12 adult body shapes (2 sexes x stature 5th / 50th / 95th percentile x slim / heavy build,
 REFERENCE section 4) and 4 mesh detail levels of the anny body model (CC0 MakeHuman assets), the rest-pose
@@ -218,7 +218,7 @@ def build(out: Path) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path,
-                        default=Path(__file__).resolve().parents[1] / "pcdet_memslidar" / "assets" / "body_bank.npz")
+                        default=Path(__file__).resolve().parents[2] / "pcdet_memslidar" / "assets" / "body_bank.npz")
     build(parser.parse_args().out)
 
 

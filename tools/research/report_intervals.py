@@ -1,7 +1,8 @@
 """Bootstrap intervals for a finished reproduction: read its results.json, add the intervals of every AP and of the
-differences between models (experiments.report.add_intervals) and write results.json and report.md to --out.
+differences between models (experiments.results.add_intervals) and write results.json and report.md to --out.
 
-    python tools/report_intervals.py output/reproduce/quick --out /tmp/quick_intervals [--gt DIR] [--resamples N]
+    python tools/research/report_intervals.py output/reproduce/quick --out /tmp/quick_intervals [--gt DIR]
+        [--resamples N]
 
 The ground truth defaults to the label_2 folder of the results' test domain. The intervals figure (ap_intervals.png)
 is drawn into --out; the other figures stay beside the original report (report.md in --out links them by name).
@@ -14,7 +15,8 @@ import sys
 from pathlib import Path
 
 from pcdet_memslidar.evaluation.bootstrap import LEVEL, RESAMPLES, SEED
-from pcdet_memslidar.experiments.report import add_intervals, write_report
+from pcdet_memslidar.experiments.report import write_report
+from pcdet_memslidar.experiments.results import add_intervals
 from pcdet_memslidar.io.layout import KittiLayout
 
 

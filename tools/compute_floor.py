@@ -1,4 +1,5 @@
-"""The arithmetic floor of a model's time: the FLOPs of one forward pass over this machine's fp32 GEMM rate.
+"""The arithmetic floor of a model's time: the FLOPs of one forward pass over this machine's fp32 GEMM rate
+(benchmark_tracking.py beside it prints it next to the measured time).
 
 No implementation of the same layers in fp32 on these threads runs faster than floor_ms; a speed target below it
 needs fewer FLOPs (another model) or other hardware, not better code.

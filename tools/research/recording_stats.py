@@ -3,7 +3,9 @@
 Everything works on per-pulse arrays of shape (F, P): F frames of the same P pulses (a static scene seen F
 times), with nan range / intensity where a pulse got no return. `pulse_arrays` makes them from a BfpcRecording,
 `replay` makes them from a SensorModel looking at the recording's own scene, and `measure` turns either into the
-same dict of numbers, so a real recording and a sensor preset can be put side by side (tools/compare_sensor.py).
+same dict of numbers, so a real recording and a sensor preset can be put side by side (compare_sensor.py beside it).
+`fit_pattern` and `calibrate_sensor` fitted the cube1_2020 pattern (sim.pattern) and the 'calibrated' sensor preset
+(sim.sensor) to the bundled recording.
 """
 from __future__ import annotations
 

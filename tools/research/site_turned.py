@@ -3,7 +3,7 @@ run, turned about the vertical by each yaw (what the sensor records after a brac
 through `memslidar detect` with each detector's config (whose background model realigns the frames,
 monitor.background_watch), scored against the unturned labels; yaw 0 is the same path without a turn.
 
-    python tools/site_turned.py output/site/blickfeld_room [--yaw 0 1 4 10] [--sets test empty]
+    python tools/research/site_turned.py output/site/blickfeld_room [--yaw 0 1 4 10] [--sets test empty]
 
 Prints, per detector and yaw: AP 3D / BEV R40 on the people set, detections per frame on the empty set, and the
 turn detect found (its sensor_turned event). Writes the turned frames and detect's outputs under <run>/turned/.
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.config import load_config
-from pcdet_memslidar.experiments.report import score_run
+from pcdet_memslidar.experiments.results import score_run
 from pcdet_memslidar.geometry.background import turn_about_vertical
 from pcdet_memslidar.io import kitti
 from pcdet_memslidar.io.layout import KittiLayout, write_frame

@@ -4,8 +4,8 @@ far the box's centre lies behind the mean of those points, along the sensor's ra
 their points' time offsets (training/time_offset, as `memslidar simulate` writes them), the direction in which
 those points move during the frame, per range.
 
-    python tools/box_from_points.py data/memslidar/industrial [--frames 150] [--min-points 5] [--min-height 0.4]
-        [--margin 0.1] [--min-speed 0.5]
+    python tools/research/box_from_points.py data/memslidar/industrial [--frames 150] [--min-points 5]
+        [--min-height 0.4] [--margin 0.1] [--min-speed 0.5]
 
 A detector can only learn what the points show. If the main axis of a person's own points (the points inside its
 labelled box: the segmentation is given) follows the box's long side, the orientation is observable; the error of

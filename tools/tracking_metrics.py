@@ -1,5 +1,6 @@
-"""Tracking metrics of `memslidar detect` on a simulated sequence (`memslidar simulate --sequence N`): CLEAR MOT
-(MOTA, identity switches, ...) and IDF1 from the `motmetrics` library (pip install -e ".[bench]").
+"""Tracking metrics of `memslidar detect` on a simulated sequence (`memslidar simulate --sequence N`) for
+benchmark_tracking.py beside it: CLEAR MOT (MOTA, identity switches, ...) and IDF1 from the `motmetrics` library
+(pip install -e ".[bench]").
 
 Ground truth: the labelled people of each frame (at least MIN_BOX_POINTS points) with their person ids from the
 frame metadata. Hypotheses: the detections of confirmed tracks with their track ids (tentative ones are no track
