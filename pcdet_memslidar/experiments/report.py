@@ -254,12 +254,14 @@ def orientation_bin_table(results: dict) -> list[str]:
 
 
 def machine_line(environment: dict) -> str:
-    """'CPU (vector extensions; torch's vector code), N cores, GPU' of results['environment'] (results from before
-    the extensions were recorded: the CPU alone)."""
+    """'CPU (vector extensions; torch's vector code, oneDNN's limit where set), N cores, GPU' of
+    results['environment'] (results from before the extensions were recorded: the CPU alone)."""
     machine = environment["machine"]
     vectors = ", ".join(machine.get("vector_extensions", []))
     if machine.get("aten_cpu_capability"):
         vectors += f"; torch vector code {machine['aten_cpu_capability']}"
+    if machine.get("onednn_max_cpu_isa"):
+        vectors += f", oneDNN up to {machine['onednn_max_cpu_isa']}"
     return (f"{machine['cpu']}{f' ({vectors})' if vectors else ''}, {machine['cores']} cores, GPU: "
             f"{machine['gpu'] or 'none'}")
 
