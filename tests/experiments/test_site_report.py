@@ -29,7 +29,7 @@ def test_the_side_by_side_table_gives_each_ap_with_its_interval_and_the_false_al
 
 def test_the_table_over_sites_names_each_run_and_its_machine():
     lines = sites_table([RESULTS])
-    assert lines[0] == ("- room: 2026-11-28T10:00:00+00:00; Some CPU (avx2, fma; torch vector code AVX2, oneDNN up to AVX2), "
-                        "2 cores, GPU: none; commit abc123; `memslidar site train --site room.yaml`; 10.0 min")
+    assert lines[0] == ("- room: 2026-11-28T10:00:00+00:00; Some CPU (avx2, fma; torch vector code AVX2, oneDNN up to "
+                        "AVX2), 2 cores, GPU: none; commit abc123; `memslidar site train --site room.yaml`; 10.0 min")
     assert lines[-1] == ("| room | background subtraction (classical) | 0.500 [0.400, 0.600] | n/a | "
                          "0.250 [0.125, 0.375] | 0.00 (3 frames, 0.37 s) | 1.50 (3 frames, 0.37 s) | 20.2 |")
