@@ -16,8 +16,10 @@ from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 # name -> (module of pcdet_memslidar.commands, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("simulate", "simulate a domain (sim | real | industrial) or a site file as a KITTI-layout dataset"),
-    "import": ("import_recordings", "real recordings (.bfpc/.pcd/.ply/.npy/.bin) and CVAT 3D cuboids -> dataset"),
+    "import": ("import_recordings", "real recordings (.bfpc/.pcd/.ply/.npy/.bin/ROS 2 bags) and CVAT 3D cuboids -> "
+                                    "dataset"),
     "export-custom": ("export_custom", "a KITTI-layout dataset -> OpenPCDet's custom layout (points/*.npy)"),
+    "export-bag": ("export_bag", "a KITTI-layout dataset -> a ROS 2 bag of PointCloud2 messages (sqlite3 or MCAP)"),
     "create-infos": ("create_infos", "info files and gt database of every source a config reads"),
     "train": ("train", "train a SECOND detector (OpenPCDet's tools/train.py flags), then evaluate"),
     "test": ("test", "evaluate checkpoints on the test split (OpenPCDet's tools/test.py flags)"),

@@ -74,7 +74,7 @@ def _command_parser(name: str) -> argparse.ArgumentParser:
     return commands.choices[name]
 
 
-WRITERS = ("simulate", "import", "export-custom", "train", "test", "reproduce", "sweep", "site", "detect")
+WRITERS = ("simulate", "import", "export-custom", "export-bag", "train", "test", "reproduce", "sweep", "site", "detect")
 
 
 @pytest.mark.parametrize("name", list(cli.COMMANDS))

@@ -8,7 +8,14 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.commands.options import add_mount_arguments, add_precision, add_profile, add_set, add_time_unit
+from pcdet_memslidar.commands.options import (
+    add_mount_arguments,
+    add_precision,
+    add_profile,
+    add_set,
+    add_time_unit,
+    add_topic,
+)
 from pcdet_memslidar.config import load_config
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.monitor.detect import FRAME_PERIOD_S, SUMMARY_FILE, DetectOptions, detect, detect_formats
@@ -22,13 +29,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ckpt", default=None,
                         help="its checkpoint (.pth); none for a detector without weights (BackgroundSubtraction)")
     parser.add_argument("--src", "--data_path", dest="src", required=True, type=Path,
-                        help="a recording (.bfpc, many frames), a frame file, a folder of frames or a KITTI-layout "
-                             "folder")
+                        help="a recording (.bfpc or a ROS 2 bag: rosbag2 folder or .mcap, many frames), a frame "
+                             "file, a folder of frames or a KITTI-layout folder")
     parser.add_argument("--format", "--ext", dest="fmt", default="auto", type=lambda text: text.lstrip("."),
-                        help=f"one of {', '.join(detect_formats())} (default auto: a KITTI layout, or the files' "
-                             "suffix); --ext .bin as in OpenPCDet's demo.py")
+                        help=f"one of {', '.join(detect_formats())} (default auto: a KITTI-layout or "
+                             "rosbag2 folder, or the files' suffix); --ext .bin as in OpenPCDet's demo.py")
     add_mount_arguments(parser)
     add_time_unit(parser)
+    add_topic(parser)
     parser.add_argument("--zones", type=Path, default=None, help="zone file (YAML): named polygons with a level")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default output/detect/<src name>)")
     parser.add_argument("--batch-size", "--batch_size", type=int, default=None,
@@ -39,6 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--save-points", action="store_true",
                         help="also write each frame's points (points/*.bin); by default only detections are kept")
     parser.add_argument("--plot", action="store_true", help="a bird's-eye PNG per frame (plots/*.png)")
+    parser.add_argument("--mcap", type=Path, default=None, metavar="FILE",
+                        help="also write the detections, tracks, zones and events as an MCAP file of ROS 2 messages "
+                             "for RViz and Foxglove (visualization_msgs MarkerArray, vision_msgs Detection3DArray); "
+                             "points only with --save-points")
     add_precision(parser)
     add_profile(parser)
     add_set(parser)
@@ -55,11 +67,12 @@ def run(args: argparse.Namespace) -> int:
                             estimate_ground=args.estimate_ground,
                             zones=read_zones(args.zones) if args.zones else None, batch_size=args.batch_size,
                             frame_period_s=args.frame_period, save_points=args.save_points, plot=args.plot,
-                            precision=args.precision, time_unit_s=args.time_unit_s)
+                            precision=args.precision, time_unit_s=args.time_unit_s, topic=args.topic,
+                            mcap=args.mcap)
     device = "cuda" if torch.cuda.is_available() else "cpu"
     shorten_time_slice()  # an edge box shares its cores
     summary = detect(cfg, args.ckpt, options, create_logger(), device)
     print(f"{summary['frames']} frames: {summary['detections']} detections, {summary['tracks']} tracks, "
           f"{summary['events']} zone events; {summary['frames_per_s']:.2f} frames/s on {device}")
-    print(f"written: {out} (detections.jsonl, labels/, {SUMMARY_FILE})")
+    print(f"written: {out} (detections.jsonl, labels/, {SUMMARY_FILE})" + (f" and {args.mcap}" if args.mcap else ""))
     return 0

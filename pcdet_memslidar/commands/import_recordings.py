@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pcdet_memslidar.commands.options import add_mount_arguments, add_time_unit
+from pcdet_memslidar.commands.options import add_mount_arguments, add_time_unit, add_topic
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.io.importer import REPORT_NAME, import_dataset, import_formats
 
@@ -35,11 +35,13 @@ def format_report(report: dict) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", required=True, choices=import_formats(), help="source format")
     parser.add_argument("--src", required=True, type=Path,
-                        help="a file, a folder of files, or a CVAT export (folder or .zip)")
+                        help="a file, a folder of files, a ROS 2 bag (rosbag2 folder or .mcap), or a CVAT export "
+                             "(folder or .zip)")
     parser.add_argument("--out", type=Path, default=Path("data/memslidar/real"),
                         help="dataset folder to create (default: %(default)s)")
     add_mount_arguments(parser)
     add_time_unit(parser)
+    add_topic(parser)
     parser.add_argument("--skip-unknown-labels", action="store_true",
                         help="drop (and count) cuboids whose label is not person / pedestrian instead of failing")
     parser.add_argument("--kitti-raw-convention", choices=("cvat", "kitti"), default="cvat",
@@ -54,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         report = import_dataset(args.format, args.src, args.out, args.mount, args.estimate_ground,
                                 args.skip_unknown_labels, args.kitti_raw_convention, args.point_cloud_range,
-                                overwrite=args.overwrite, time_unit_s=args.time_unit_s)
+                                overwrite=args.overwrite, time_unit_s=args.time_unit_s, topic=args.topic)
     except (DataFormatError, ConfigError, ValueError) as error:  # OutputError is a ValueError too
         print(f"error: {error}\n(nothing was written to {args.out})", file=sys.stderr)
         return 2 if isinstance(error, OutputError) else 1

@@ -1,5 +1,5 @@
 """Options that several commands take, added the same way everywhere (--profile, --set, --workers, --mount,
---time-unit),
+--time-unit, --topic),
 OpenPCDet's flags of `memslidar train` and `memslidar test`, and the experiment set-up those flags ask for."""
 from __future__ import annotations
 
@@ -68,7 +68,16 @@ def add_time_unit(parser: argparse.ArgumentParser) -> None:
     (io.formats.time_unit_clouds) (args.time_unit_s: seconds per unit or None)."""
     parser.add_argument("--time-unit", dest="time_unit_s", type=_time_unit, default=None, metavar="{s,ms,us,ns}",
                         help=f"unit of the per-point time field of {time_unit_clouds()} clouds, which those formats "
-                             "do not record (default: their times are not used; .bfpc and KITTI-layout times are)")
+                             "do not (always) record (default: their times are not used, but a ROS 2 bag's integer "
+                             "time field is taken as ns and a float32 one as s; .bfpc and KITTI-layout times are "
+                             "used)")
+
+
+def add_topic(parser: argparse.ArgumentParser) -> None:
+    """--topic: the point-cloud topic of a ROS 2 bag (args.topic; None: the bag's only PointCloud2 topic)."""
+    parser.add_argument("--topic", default=None,
+                        help="the sensor_msgs/msg/PointCloud2 topic of a ROS 2 bag (default: its only one; a bag "
+                             "with several is refused, listing them)")
 
 
 def _time_unit(text: str) -> float:

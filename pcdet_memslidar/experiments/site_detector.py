@@ -67,7 +67,7 @@ from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.train import final_checkpoint
 from pcdet_memslidar.sim.composite import estimate_background_mount, read_background
 from pcdet_memslidar.sim.pattern import get_pattern
-from pcdet_memslidar.sim.site import BUNDLED_SITES, Background, Site, get_domain, load_site
+from pcdet_memslidar.sim.site import BUNDLED_SITES, Site, get_domain, load_site
 from pcdet_memslidar.sim.writer import simulate_dataset, simulate_empty_recording
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores
@@ -135,8 +135,8 @@ def split_background(site: Site, holdout: float) -> tuple[Site, Site, tuple[int,
         raise ConfigError(f"{site.background.recording}: {stop - first} frames cannot be split into training and "
                           f"held-out frames: record more frames of the empty site")
     cut = stop - held
-    train = dataclasses.replace(site, background=Background(site.background.recording, (first, cut)))
-    test = dataclasses.replace(site, background=Background(site.background.recording, (cut, stop)))
+    train = dataclasses.replace(site, background=dataclasses.replace(site.background, frames=(first, cut)))
+    test = dataclasses.replace(site, background=dataclasses.replace(site.background, frames=(cut, stop)))
     return train, test, (cut, stop)
 
 

@@ -1,11 +1,13 @@
 """The input formats: one registry of what each format is and how its frames are read.
 
 `memslidar import` (io.importer), `memslidar detect` (monitor.detect), site backgrounds (sim.site) and compositing
-(sim.composite) take their lists of formats and their readers from FORMATS. A format is read in one of four ways:
+(sim.composite) take their lists of formats and their readers from FORMATS. A format is read in one of five ways:
 
     read_fields   a point cloud per file -> its (N,) columns by name (x, y, z, intensity, time: see
                   io.pointclouds.cloud_from_fields): .pcd, .ply, .npy, .bin; returns only
     read_pulses   a recording per file -> frames of every pulse of the scan pattern, with or without a return: .bfpc
+    read_frames   a recording per file, or per folder (with is_recording telling such a folder), a topic (None: its
+                  only one) and a time unit -> frames of returns with their recorded start times: ROS 2 bags
     read_layout   a folder layout -> its frames (with is_layout telling such a folder): the KITTI layout
     read_export   an unpacked annotation export and a box convention -> its labelled frames: CVAT's
 
@@ -15,6 +17,7 @@ Adding a format is a module with its reader and one line at the end of this file
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +26,7 @@ from typing import Callable, Iterable
 import numpy as np
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError
-from pcdet_memslidar.io import bfpc, cvat, layout, pointclouds
+from pcdet_memslidar.io import bfpc, cvat, layout, pointclouds, rosbag
 from pcdet_memslidar.io.frames import PulseRecording, SourceFrame
 from pcdet_memslidar.io.pointclouds import LoadedCloud, cloud_from_fields
 
@@ -38,6 +41,8 @@ class InputFormat:
     suffixes: tuple[str, ...] = ()
     read_fields: Callable[[Path], dict[str, np.ndarray]] | None = None
     read_pulses: Callable[[Path], PulseRecording] | None = None
+    read_frames: Callable[[Path, str | None, float | None], list[SourceFrame]] | None = None
+    is_recording: Callable[[Path], bool] | None = None
     read_layout: Callable[[Path], list[SourceFrame]] | None = None
     is_layout: Callable[[Path], bool] | None = None
     read_export: Callable[[Path, str], list[cvat.CvatFrame]] | None = None
@@ -45,13 +50,15 @@ class InputFormat:
     self_timed: bool = False
 
     def __post_init__(self):
-        readers = [self.read_fields, self.read_pulses, self.read_layout, self.read_export]
+        readers = [self.read_fields, self.read_pulses, self.read_frames, self.read_layout, self.read_export]
         if sum(reader is not None for reader in readers) != 1:
-            raise ValueError(f"format {self.name!r}: give exactly one of read_fields, read_pulses, read_layout, "
-                             "read_export")
+            raise ValueError(f"format {self.name!r}: give exactly one of read_fields, read_pulses, read_frames, "
+                             "read_layout, read_export")
         if (self.read_layout is None) != (self.is_layout is None):
             raise ValueError(f"format {self.name!r}: a folder layout needs both read_layout and is_layout")
-        if bool(self.suffixes) != (self.read_fields is not None or self.read_pulses is not None):
+        if self.is_recording is not None and self.read_frames is None:
+            raise ValueError(f"format {self.name!r}: is_recording tells a folder that read_frames reads")
+        if bool(self.suffixes) != any(reader is not None for reader in readers[:3]):
             raise ValueError(f"format {self.name!r}: a format of files has suffixes, a layout or an export none")
         if any(not suffix.startswith(".") or suffix != suffix.lower() for suffix in self.suffixes):
             raise ValueError(f"format {self.name!r}: give suffixes in lower case with the dot, e.g. '.pcd'")
@@ -60,6 +67,17 @@ class InputFormat:
     def pulses(self) -> bool:
         """Whether it carries every pulse of the scan pattern, with or without a return (else returns only)."""
         return self.read_pulses is not None
+
+    @property
+    def topics(self) -> bool:
+        """Whether its recordings hold topics, of which one is read (--topic)."""
+        return self.read_frames is not None
+
+    def whole_folder(self, src: Path) -> bool:
+        """Whether `src` is a folder that is one layout or one recording of this format (not a folder of its
+        files)."""
+        test = self.is_layout or self.is_recording
+        return test is not None and src.is_dir() and test(src)
 
     @property
     def layout(self) -> bool:
@@ -101,12 +119,13 @@ def file_formats() -> list[InputFormat]:
 
 
 def format_of(src: Path, formats: Iterable[InputFormat], fix: str) -> InputFormat:
-    """The one of `formats` that `src` is in: a folder layout (is_layout), else the format of the file's suffix or
-    of the suffixes of the folder's files; DataFormatError naming what was found and `fix` otherwise."""
+    """The one of `formats` that `src` is in: a folder that is one layout or recording (whole_folder), else the
+    format of the file's suffix or of the suffixes of the folder's files; DataFormatError naming what was found and
+    `fix` otherwise."""
     formats = list(formats)
-    folder_layout = next((fmt for fmt in formats if fmt.layout and src.is_dir() and fmt.is_layout(src)), None)
-    if folder_layout is not None:
-        return folder_layout
+    whole = next((fmt for fmt in formats if fmt.whole_folder(src)), None)
+    if whole is not None:
+        return whole
     files = [src] if src.is_file() else sorted(p for p in src.iterdir() if p.is_file()) if src.is_dir() else []
     found = {fmt.name: fmt for fmt in formats for path in files if path.suffix.lower() in fmt.suffixes}
     if len(found) != 1:
@@ -116,8 +135,9 @@ def format_of(src: Path, formats: Iterable[InputFormat], fix: str) -> InputForma
 
 
 def format_files(src: Path, fmt: InputFormat) -> list[Path]:
-    """`src` itself, or the files with a suffix of `fmt` in the folder `src` in natural name order."""
-    if src.is_file():
+    """`src` itself (a file, or a folder that is one recording), or the files with a suffix of `fmt` in the folder
+    `src` in natural name order."""
+    if src.is_file() or fmt.whole_folder(src):
         return [src]
     if not src.is_dir():
         raise DataFormatError(src, "not found: give a file or a folder of files")
@@ -144,9 +164,10 @@ def read_point_cloud(path: str | Path, time_unit_s: float | None = None) -> Load
 
 
 def time_unit_clouds() -> str:
-    """The point-cloud formats whose per-point times need --time-unit (timed, unit not recorded) as text, e.g.
-    'PCD, PLY and NPY'."""
-    names = [fmt.name.upper() for fmt in FORMATS.values() if fmt.read_fields and fmt.timed and not fmt.self_timed]
+    """The formats whose per-point times may need --time-unit (timed, unit not always recorded) as text, e.g.
+    'PCD, PLY, NPY and ROSBAG2'."""
+    names = [fmt.name.upper() for fmt in FORMATS.values()
+             if (fmt.read_fields or fmt.read_frames) and fmt.timed and not fmt.self_timed]
     return ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else "".join(names)
 
 
@@ -159,12 +180,21 @@ def check_time_unit(fmt: str, time_unit_s: float | None) -> None:
         raise ConfigError(f"--time-unit is for {time_unit_clouds()} clouds: format {fmt} {why}; drop --time-unit")
 
 
-def list_frames(fmt: str, src: str | Path, time_unit_s: float | None = None, convention: str = "cvat"
-                ) -> list[SourceFrame]:
+def check_topic(fmt: str, topic: str | None) -> None:
+    """ConfigError where a topic is given (--topic) for a format whose recordings hold no topics."""
+    if topic is not None and not get_format(fmt).topics:
+        names = " and ".join(name for name, format_ in FORMATS.items() if format_.topics)
+        raise ConfigError(f"--topic is for {names} recordings: format {fmt} has no topics; drop --topic")
+
+
+def list_frames(fmt: str, src: str | Path, time_unit_s: float | None = None, convention: str = "cvat",
+                topic: str | None = None) -> list[SourceFrame]:
     """The frames of `src` in format `fmt` (a name in FORMATS) in recording order. For an annotation export `src`
     is the unpacked export (cvat.open_export) and `convention` its box convention (cvat.read_kitti_raw_export);
-    time_unit_s: seconds per unit of the clouds' time field, for formats that do not record it."""
+    time_unit_s: seconds per unit of the clouds' time field, for formats that do not (always) record it; topic: the
+    topic to read, for formats whose recordings hold topics (None: their only point-cloud topic)."""
     check_time_unit(fmt, time_unit_s)
+    check_topic(fmt, topic)
     format_, src = get_format(fmt), Path(src)
     if format_.layout:
         return format_.read_layout(src)
@@ -172,23 +202,30 @@ def list_frames(fmt: str, src: str | Path, time_unit_s: float | None = None, con
         return [SourceFrame(frame.name, functools.partial(read_point_cloud, frame.cloud_path, time_unit_s), frame)
                 for frame in format_.read_export(src, convention)]
     files = format_files(src, format_)
-    if format_.pulses:
-        return _pulse_source_frames(format_, files)
+    if format_.read_fields is None:  # recordings of many frames
+        return _recorded_frames(format_, files, topic, time_unit_s)
     return [SourceFrame(path.name, functools.partial(read_point_cloud, path, time_unit_s)) for path in files]
 
 
-def _pulse_source_frames(fmt: InputFormat, files: list[Path]) -> list[SourceFrame]:
-    """The frames of the recordings `files` as their strongest returns with their pulses' times [s], timed from the
-    first frame's start; a pulse without return counts as dropped."""
-    frames, first_ns = [], None
-    for path in files:
-        for frame in fmt.read_pulses(path).frames:
-            first_ns = frame.start_time_ns if first_ns is None else first_ns
-            returned = frame.returned
-            cloud = LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
-                                dropped=int((~returned).sum()), has_intensity=True, time_unit_s=1.0)
-            frames.append(SourceFrame(frame.name, lambda cloud=cloud: cloud,
-                                      time_s=(frame.start_time_ns - first_ns) * 1e-9))
+def _recorded_frames(fmt: InputFormat, files: list[Path], topic: str | None, time_unit_s: float | None
+                     ) -> list[SourceFrame]:
+    """The frames of the recordings `files` (read_frames or read_pulses), timed from the first frame's recorded
+    start."""
+    frames = [frame for path in files for frame in (
+        fmt.read_frames(path, topic, time_unit_s) if fmt.read_frames else _strongest_returns(fmt.read_pulses(path)))]
+    first_ns = frames[0].stamp_ns if frames else 0
+    return [dataclasses.replace(frame, time_s=(frame.stamp_ns - first_ns) * 1e-9) for frame in frames]
+
+
+def _strongest_returns(recording: PulseRecording) -> list[SourceFrame]:
+    """The frames of a recording of pulses as their strongest returns with their pulses' times [s]; a pulse without
+    return counts as dropped."""
+    frames = []
+    for frame in recording.frames:
+        returned = frame.returned
+        cloud = LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
+                            dropped=int((~returned).sum()), has_intensity=True, time_unit_s=1.0)
+        frames.append(SourceFrame(frame.name, lambda cloud=cloud: cloud, stamp_ns=frame.start_time_ns))
     return frames
 
 
@@ -197,6 +234,7 @@ register_format(InputFormat("pcd", (".pcd",), read_fields=pointclouds.read_pcd_f
 register_format(InputFormat("ply", (".ply",), read_fields=pointclouds.read_ply_fields))
 register_format(InputFormat("npy", (".npy",), read_fields=pointclouds.read_npy_fields))
 register_format(InputFormat("bin", (".bin",), read_fields=pointclouds.read_bin_fields, timed=False))
+register_format(InputFormat("rosbag2", rosbag.BAG_SUFFIXES, read_frames=rosbag.read_bag, is_recording=rosbag.is_bag))
 register_format(InputFormat("kitti", read_layout=layout.read_layout_frames, is_layout=layout.is_layout,
                             self_timed=True))  # time offsets [s] in training/time_offset/
 register_format(InputFormat("cvat-sly", read_export=lambda root, convention: cvat.read_sly_export(root)))

@@ -12,13 +12,21 @@ from pcdet_memslidar.io.pointclouds import LoadedCloud
 
 @dataclass
 class SourceFrame:
-    """One frame of a recording: its name in the source, a loader of its cloud, its cuboids (None: no labels) and its
-    start time [s] since the recording's first frame (None: the format does not say)."""
+    """One frame of a recording: its name in the source, a loader of its cloud, its cuboids (None: no labels), its
+    start time [s] since the recording's first frame, its recorded start time [ns] since the epoch and the name of
+    its coordinate frame (a ROS header's frame_id) (None: the format does not say)."""
 
     name: str
     load: Callable[[], LoadedCloud]
     cuboids: CvatFrame | None = None
     time_s: float | None = None
+    stamp_ns: int | None = None
+    frame_id: str | None = None
+
+
+def frame_stamp_ns(frame: SourceFrame, time_s: float) -> int:
+    """The frame's recorded start time [ns since the epoch], else its time `time_s` [s] since the first frame."""
+    return frame.stamp_ns if frame.stamp_ns is not None else round(time_s * 1e9)
 
 
 @dataclass(frozen=True)

@@ -129,12 +129,14 @@ def _totals(per_frame: list[dict]) -> dict:
 
 def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | None = None,
                    estimate_ground: bool = False, skip_unknown: bool = False, convention: str = "cvat",
-                   point_cloud_range=None, overwrite: bool = True, time_unit_s: float | None = None) -> dict:
+                   point_cloud_range=None, overwrite: bool = True, time_unit_s: float | None = None,
+                   topic: str | None = None) -> dict:
     """Import `src` (format `fmt`, one of import_formats()) into a KITTI-layout dataset at `out`; return the report.
     point_cloud_range: the range of the report's out-of-range count (default: detector_range()). time_unit_s:
     seconds per unit of the clouds' time fields where their format does not record it (their time offsets are
-    written only with it). `out` must be new, empty or an earlier import (replaced only if `overwrite`) and must not
-    be or contain `src`: OutputError otherwise."""
+    written only with it). topic: the point-cloud topic of a ROS 2 bag (None: its only one). `out` must be new,
+    empty or an earlier import (replaced only if `overwrite`) and must not be or contain `src`: OutputError
+    otherwise."""
     if fmt not in import_formats():
         raise ConfigError(f"unknown format {fmt!r}; use one of {', '.join(import_formats())}")
     if mount is not None and estimate_ground:
@@ -146,6 +148,6 @@ def import_dataset(fmt: str, src: str | Path, out: str | Path, mount: Mount | No
         raise OutputError(f"--out {out} holds an earlier import; pass --overwrite to replace it, or choose a new "
                           "folder")
     with cvat.open_export(src) if FORMATS[fmt].labelled else contextlib.nullcontext(src) as root:
-        frames = list_frames(fmt, root, time_unit_s, convention)
+        frames = list_frames(fmt, root, time_unit_s, convention, topic)
         mount, entry = choose_mount(frames, mount, estimate_ground)
         return import_frames(frames, out, mount, entry, fmt, src, skip_unknown, point_cloud_range)

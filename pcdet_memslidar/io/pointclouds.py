@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
@@ -60,7 +61,7 @@ def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path, time_unit
         raise DataFormatError(path, f"no field(s) {', '.join(missing)}; the file has {', '.join(fields) or 'none'}")
     xyz = np.stack([fields[names[axis]] for axis in "xyz"], axis=1).astype(np.float64)
     intensity_name = next((names[n] for n in INTENSITY_FIELDS if n in names), None)
-    time_name = next((names[n] for n in TIME_FIELDS if n in names), None)
+    time_name = time_field(fields)
     intensity = fields[intensity_name].astype(np.float32) if intensity_name else np.zeros(len(xyz), np.float32)
     time = fields[time_name].astype(np.float64) if time_name else None
     valid = np.isfinite(xyz).all(axis=1) & np.any(xyz != 0.0, axis=1)
@@ -81,6 +82,13 @@ def cloud_from_fields(fields: dict[str, np.ndarray], path: str | Path, time_unit
         _check_time_unit(path, fields, time_name, time, time_unit_s)
     return LoadedCloud(points=points, time=time, dropped=int((~valid).sum()), has_intensity=intensity_name is not None,
                        time_unit_s=time_unit_s if time_name else None)
+
+
+def time_field(names: Iterable[str]) -> str | None:
+    """The name of the per-point time column among `names`: the first of TIME_FIELDS there (case-insensitive), or
+    None."""
+    lower = {name.lower(): name for name in names}
+    return next((lower[name] for name in TIME_FIELDS if name in lower), None)
 
 
 def _check_time_unit(path, fields: dict, time_name: str | None, time: np.ndarray | None, time_unit_s: float) -> None:

@@ -8,13 +8,15 @@ industrial safety).
     -> per batch of frames: normalise to the ground frame, voxelise (the config's DATA_PROCESSOR), infer
     -> per frame, in time order: track (monitor.tracker), zones and events (monitor.zones)
     -> write labels/<frame>.txt (KITTI with scores), detections.jsonl and summary.json (and on request plots/ and
-       points/) into a temporary folder that replaces --out only when every frame succeeded
+       points/) into a temporary folder that replaces --out only when every frame succeeded; on request (mcap) the
+       same detections as an MCAP file of ROS 2 messages (monitor.mcap_out), finished just before
 
 Raw points are written only with save_points: by default only detections leave (the paper's GDPR argument: boxes
 and tracks, not the gait in the points).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import time
@@ -26,16 +28,17 @@ import numpy as np
 import torch
 
 from pcdet_memslidar.datasets.dataset import DatasetTemplate
-from pcdet_memslidar.errors import DataFormatError
+from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
 from pcdet_memslidar.geometry.calibration import Calibration
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground, kitti
 from pcdet_memslidar.io.formats import FORMATS, format_of, list_frames
-from pcdet_memslidar.io.frames import SourceFrame
+from pcdet_memslidar.io.frames import SourceFrame, frame_stamp_ns
 from pcdet_memslidar.io.importer import choose_mount
 from pcdet_memslidar.models import load_data_to_device
 from pcdet_memslidar.models.detector import PRECISIONS
 from pcdet_memslidar.monitor.background_watch import BackgroundWatch
+from pcdet_memslidar.monitor.mcap_out import mcap_out
 from pcdet_memslidar.monitor.plots import plot_tracks_frame
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
@@ -70,6 +73,8 @@ class DetectOptions:
     plot: bool = False
     precision: str = PRECISIONS[0]  # inference precision of the BEV backbone and head (models.detector.PRECISIONS)
     time_unit_s: float | None = None  # seconds per unit of time fields whose format does not record it (None: unused)
+    topic: str | None = None  # the point-cloud topic of a ROS 2 bag (None: its only one)
+    mcap: Path | None = None  # also write the detections as this MCAP file (monitor.mcap_out)
 
 
 def detect_formats() -> list[str]:
@@ -131,8 +136,10 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     src, out = Path(options.src), Path(options.out)
     refuse_overlap(out, [src], "--out")
     check_output_folder(out, COMMAND)
+    if options.mcap is not None:
+        _check_mcap(Path(options.mcap), src)
     fmt = resolve_format(src, options.fmt)
-    frames = list_frames(fmt, src, options.time_unit_s)
+    frames = list_frames(fmt, src, options.time_unit_s, topic=options.topic)
     if not frames:
         raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)
@@ -145,7 +152,8 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()
     with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines, \
-            threads_giving_way() as give_way:  # an edge box shares its cores: fewer threads when others run
+            threads_giving_way() as give_way, \
+            _mcap_out(options, out, tmp, mount) as to_mcap:  # give_way: an edge box shares its cores
         bar = progress_bar(total=len(frames), desc="detect", unit="frame")
         for first in range(0, len(frames), batch_size):
             batch = frames[first:first + batch_size]
@@ -166,6 +174,8 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
                 lines.write(json.dumps(record) + "\n")  # 4. write
                 _write_frame(tmp, record, boxes, scores, ids, points, monitor, options,
                              cfg.DATA_CONFIG.POINT_CLOUD_RANGE)
+                if to_mcap is not None:
+                    to_mcap(record, points, frame_stamp_ns(frame, time_s), frame.frame_id)
                 _lap(seconds, "write", tick)
                 counts["detections"] += len(boxes)
                 counts["events"] += len(record["events"])
@@ -180,6 +190,7 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
                    "detections": counts["detections"], "tracks": len(monitor.track_ids), "events": counts["events"],
                    "background_events": watch.events if watch else None,
                    "zones": [zone.name for zone in options.zones or []], "points_written": options.save_points,
+                   "mcap": options.mcap and str(options.mcap),
                    "device": str(device), "torch_threads": torch.get_num_threads(), "batch_size": batch_size,
                    "precision": options.precision,
                    "ms_per_frame": {stage: 1000 * seconds[stage] / max(1, len(frames)) for stage in STAGES},
@@ -204,6 +215,26 @@ def _write_frame(folder: Path, record: dict, boxes: np.ndarray, scores: np.ndarr
                           [(zone.name, zone.level, zone.polygon) for zone in options.zones or []], record["events"],
                           f"frame {frame_id} ({record['source']}), t = {record['time_s']:.2f} s",
                           (np.array([x0, x1]), np.array([y0, y1])))
+
+
+def _check_mcap(path: Path, src: Path) -> None:
+    """ConfigError unless the --mcap file `path` is named *.mcap; OutputError where it is or lies in the input."""
+    if path.suffix.lower() != ".mcap":
+        raise ConfigError(f"--mcap {path}: name the file with the suffix .mcap")
+    path, src = path.resolve(), src.resolve()
+    if path == src or src in path.parents:
+        raise OutputError(f"--mcap {path} {'is' if path == src else 'lies in'} the input {src}; choose a file outside "
+                          "the input")
+
+
+def _mcap_out(options: DetectOptions, out: Path, tmp: Path, mount: Mount | None):
+    """monitor.mcap_out's writer of options.mcap (a file inside `out` is written into its temporary folder `tmp`), or
+    a context of None without it."""
+    if options.mcap is None:
+        return contextlib.nullcontext()
+    path, out = Path(options.mcap).resolve(), out.resolve()
+    return mcap_out(tmp / path.relative_to(out) if path.is_relative_to(out) else path, options.zones or [], mount,
+                    options.save_points)
 
 
 def _lap(seconds: Counter, stage: str, tick: float) -> float:

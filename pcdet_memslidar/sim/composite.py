@@ -34,7 +34,8 @@ import pcdet_memslidar
 from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.geometry.mount import Mount
 from pcdet_memslidar.io import ground
-from pcdet_memslidar.io.formats import InputFormat, format_files, list_frames, read_point_cloud
+from pcdet_memslidar.io.formats import InputFormat, format_files, list_frames
+from pcdet_memslidar.io.frames import SourceFrame
 from pcdet_memslidar.sim.bodies import BodyBank, load_body_bank
 from pcdet_memslidar.sim.caster import Caster, FrameHits
 from pcdet_memslidar.sim.distractors import Distractor, cast_distractors, footprints, frame_distractors
@@ -107,30 +108,30 @@ def _pulse_frames(fmt: InputFormat, files: list[Path], pattern: ScanPattern) -> 
     return background
 
 
-def _cloud_frames(files: list[Path], pattern: ScanPattern) -> list[BackgroundFrame]:
-    """Frames of point-cloud files (returns only). Each return is a pulse along its own direction, at the time of
-    the pattern's pulse nearest to it; the pattern's pulses that no return is nearest to are the pulses without a
-    return."""
+def _cloud_frames(path: Path, source: list[SourceFrame], pattern: ScanPattern) -> list[BackgroundFrame]:
+    """Frames of the returns-only recording `path` (point-cloud files, a ROS 2 bag). Each return is a pulse along
+    its own direction, at the time of the pattern's pulse nearest to it; the pattern's pulses that no return is
+    nearest to are the pulses without a return. Frames without a recorded start are a frame period apart."""
     directions, time_offset, _ = pattern.pulses()
     tree, spacing = cKDTree(directions), np.radians(pattern.angle_spacing_deg)
     frames = []
-    for index, path in enumerate(files):
-        cloud = read_point_cloud(path)
+    for index, frame in enumerate(source):
+        cloud = frame.load()
         distance = np.linalg.norm(cloud.points[:, :3].astype(np.float64), axis=1)
         own = cloud.points[:, :3] / distance[:, None]
         angle, pulse = tree.query(own)  # chord ~ angle [rad] at these scales
         if len(angle) and np.median(angle) > MAX_MATCH_SPACINGS * spacing:
-            raise DataFormatError(path, f"its returns lie {np.degrees(np.median(angle)):.2f} deg (median) from the "
-                                        f"nearest pulse of the site's scan pattern '{pattern.name}' (spacing "
-                                        f"{pattern.angle_spacing_deg:g} deg): recorded with another pattern; set "
-                                        f"sensor.pattern in the site file to the recording's")
+            raise DataFormatError(path, f"frame {frame.name}: its returns lie {np.degrees(np.median(angle)):.2f} "
+                                        f"deg (median) from the nearest pulse of the site's scan pattern "
+                                        f"'{pattern.name}' (spacing {pattern.angle_spacing_deg:g} deg): recorded with "
+                                        "another pattern; set sensor.pattern in the site file to the recording's")
         silent = np.setdiff1d(np.arange(len(directions)), pulse)
         times = np.concatenate([time_offset[pulse], time_offset[silent]])
         order = np.argsort(times, kind="stable")
         points = np.concatenate([cloud.points, np.full((len(silent), 4), np.nan, dtype=np.float32)])
-        frames.append(BackgroundFrame(path.name, np.concatenate([own, directions[silent]])[order], times[order],
-                                      np.concatenate([distance, np.full(len(silent), np.inf)])[order],
-                                      points[order], index * pattern.frame_period_s))
+        frames.append(BackgroundFrame(frame.name, np.concatenate([own, directions[silent]])[order], times[order],
+                                      np.concatenate([distance, np.full(len(silent), np.inf)])[order], points[order],
+                                      index * pattern.frame_period_s if frame.time_s is None else frame.time_s))
     return frames
 
 
@@ -140,8 +141,8 @@ def read_background(background: Background, pattern: str | ScanPattern) -> tuple
     pulse; DataFormatError naming the file and fix when it does not fit the site's `pattern`."""
     path, pattern = Path(background.recording), get_pattern(pattern)
     fmt = background_format(path)
-    files = format_files(path, fmt)
-    frames = _pulse_frames(fmt, files, pattern) if fmt.pulses else _cloud_frames(files, pattern)
+    frames = _pulse_frames(fmt, format_files(path, fmt), pattern) if fmt.pulses else \
+        _cloud_frames(path, list_frames(fmt.name, path, topic=background.topic), pattern)
     first, stop = background.frames or (0, len(frames))
     if stop > len(frames) or not frames:
         raise DataFormatError(path, f"background.frames [{first}, {stop}) asks for more than its {len(frames)} "
@@ -150,11 +151,13 @@ def read_background(background: Background, pattern: str | ScanPattern) -> tuple
 
 
 def recording_sha256(background: Background) -> str:
-    """sha256 of the recording's bytes (its files in name order for a folder): part of a site's fingerprint."""
+    """sha256 of the recording's bytes (its files in name order for a folder, a ROS 2 bag's folder included): part
+    of a site's fingerprint."""
     path = Path(background.recording)
     digest = hashlib.sha256()
-    for file in format_files(path, background_format(path)):
-        digest.update(file.name.encode() + file.read_bytes())
+    for recording in format_files(path, background_format(path)):
+        for file in sorted(recording.iterdir()) if recording.is_dir() else [recording]:
+            digest.update(file.name.encode() + file.read_bytes())
     return digest.hexdigest()
 
 
@@ -163,7 +166,8 @@ def recording_points(background: Background, frames: int = 5) -> np.ndarray:
     estimated from."""
     path = Path(background.recording)
     first = background.frames[0] if background.frames else 0
-    clouds = [frame.load().points for frame in list_frames(background_format(path).name, path)[first:first + frames]]
+    clouds = [frame.load().points for frame in list_frames(background_format(path).name, path,
+                                                           topic=background.topic)[first:first + frames]]
     if not clouds:
         raise DataFormatError(path, "holds no frames to estimate the mount from")
     return np.concatenate(clouds)

@@ -11,6 +11,7 @@ empty site, into which simulated people are ray-cast (sim/composite.py). The bun
     mount: {height: 3.2, tilt_deg: 12}              # or `estimate` (from the background's floor)
     scene: industrial_entrance                      # or {base: NAME, primitives: [...]}; or viewpoints: [...]
     background: {recording: empty_hall.bfpc}        # instead of a scene: a real recording of the empty site
+                                                    # (a ROS 2 bag with several point-cloud topics: topic: /points)
     walkable: [[2, -4], [9, -4], [9, 4], [2, 4]]    # polygon on the floor [m] people stay inside
     people: {count: [1, 8], behaviours: {walk: 0.5, stand: 0.5}, vest_probability: 0.6}
     distractors: {count: [0, 2], kinds: [box, pallet]}   # with a background: objects that are not people
@@ -55,10 +56,12 @@ class Background:
     """A recording of the empty site in the sensor frame: a file or a folder of frames of one format
     (background_format).
 
-    frames: (first, stop) indices of the recording's frames to use (None: all)."""
+    frames: (first, stop) indices of the recording's frames to use (None: all); topic: the point-cloud topic of a
+    ROS 2 bag (None: its only one)."""
 
     recording: str
     frames: tuple[int, int] | None = None
+    topic: str | None = None
 
 
 # Site fields left out of Site.to_dict at these values: the fingerprints of sites made before the fields existed stay
@@ -104,6 +107,8 @@ class Site:
         """JSON-ready form (used for the fingerprint and the metadata); the keys of a site without a walkable area,
         a background or distractors are those of the bundled domains before site files, so their fingerprints stay."""
         settings = dataclasses.asdict(self)
+        if self.background is not None and self.background.topic is None:
+            del settings["background"]["topic"]  # the fingerprints of background sites made before bags stay
         return {key: value for key, value in settings.items()
                 if not (key in _LEFT_OUT_WHEN_DEFAULT and value == _LEFT_OUT_WHEN_DEFAULT[key])}
 
@@ -115,7 +120,7 @@ _KEYS = dict(top=("name", "sensor", "mount", "scene", "viewpoints", "background"
                   "distractors", "frames", "simulation"),
              sensor=("pattern", "physics"), mount=("height", "tilt_deg", "roll_deg", "yaw_deg"),
              viewpoint=("scene", "mount"), scene=("base", "primitives", "walk_headings_deg", "walk_x_max"),
-             background=("recording", "frames"),
+             background=("recording", "frames", "topic"),
              people=("count", "shapes", "behaviours", "group_probability", "min_separation_m", "vest_probability",
                      "phase_steps"),
              distractors=("count", "kinds"), simulation=("lod", "time_step_s"),
@@ -335,15 +340,18 @@ def _background(file: _SiteFile, node, key: str) -> Background:
         raise file.error(fields["recording"], f"{key}.recording", f"{recording} does not exist; give the path of the "
                                                                    f"recording (relative to the site file)")
     try:
-        background_format(recording)
+        fmt = background_format(recording)
     except DataFormatError as error:
         raise file.error(fields["recording"], f"{key}.recording", str(error)) from None
+    topic = str(file.value(fields["topic"])) if "topic" in fields else None
+    if topic is not None and not fmt.topics:
+        raise file.error(fields["topic"], f"{key}.topic", f"a {fmt.name} recording has no topics: drop {key}.topic")
     frames = None
     if "frames" in fields:
         frames = file.numbers(fields["frames"], f"{key}.frames", 2, 0, 10 ** 7, integer=True)
         if frames[0] >= frames[1]:
             raise file.error(fields["frames"], f"{key}.frames", f"{list(frames)}: give [first, stop) with first < stop")
-    return Background(str(recording), frames)
+    return Background(str(recording), frames, topic)
 
 
 def background_format(recording: Path) -> InputFormat:

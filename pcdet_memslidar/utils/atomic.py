@@ -178,6 +178,18 @@ def atomic_dir(path: str | Path, owner: str) -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def scratch_dir(path: str | Path) -> Iterator[Path]:
+    """Yield a new empty temporary folder beside `path`, removed afterwards (after a kill: by remove_leftovers), for
+    a writer that makes the file `path` with files of its own: rename the finished file onto `path` (os.replace)
+    inside the block."""
+    tmp = _make_temporary_dir(Path(path))
+    try:
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def refuse_overlap(output: str | Path, inputs, option: str = "the output") -> Path:
     """Return `output` resolved; raise OutputError if it equals or contains one of `inputs` (files or folders),
     since writing it could replace or delete an input."""

@@ -16,8 +16,8 @@ from pcdet_memslidar.sim.composite import composite_frame, read_background
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.sim.site import background_format, load_site
 
-IMPORT_FORMATS = ["bfpc", "pcd", "ply", "npy", "bin", "cvat-sly", "cvat-kitti-raw"]  # `memslidar import --format`
-DETECT_FORMATS = ["auto", "bfpc", "pcd", "ply", "npy", "bin", "kitti"]  # `memslidar detect --format`
+IMPORT_FORMATS = ["bfpc", "pcd", "ply", "npy", "bin", "rosbag2", "cvat-sly", "cvat-kitti-raw"]  # import --format
+DETECT_FORMATS = ["auto", "bfpc", "pcd", "ply", "npy", "bin", "rosbag2", "kitti"]  # `memslidar detect --format`
 
 
 def read_xyz_fields(path: Path) -> dict[str, np.ndarray]:
@@ -66,8 +66,8 @@ def test_import_reads_a_registered_format_into_the_kitti_layout(tmp_path, xyz, x
         frame = read_frame(KittiLayout(out), f"{index:06d}")
         np.testing.assert_array_equal(frame["points"], points)  # no mount: stored as they are
         assert frame["metadata"]["source"] == f"{index}.xyz" and "time_offset_file" not in frame["metadata"]
-    with pytest.raises(ConfigError, match="--time-unit is for PCD, PLY and NPY clouds: format xyz has no per-point "
-                                          "time; drop --time-unit"):
+    with pytest.raises(ConfigError, match="--time-unit is for PCD, PLY, NPY and ROSBAG2 clouds: format xyz has no "
+                                          "per-point time; drop --time-unit"):
         list_frames("xyz", folder, time_unit_s=1e-6)
 
 
@@ -111,7 +111,7 @@ def test_a_site_background_of_no_registered_format_is_refused_naming_the_formats
     (folder / "0.xyz").write_text("5 0 1 10\n")
     with pytest.raises(ConfigError, match=r"room.yaml:4: background.recording: .*frames: cannot tell the format "
                                           r"\(found .xyz\): a background is a file or a folder of frames of one "
-                                          r"format: .bfpc, .pcd, .ply, .npy, .bin"):
+                                          r"format: .bfpc, .pcd, .ply, .npy, .bin, .mcap, .db3"):
         load_site(site_file(tmp_path, folder))
 
 

@@ -211,5 +211,5 @@ def test_time_unit_writes_the_time_offsets_of_npy_clouds_and_is_refused_where_it
     bfpc = cli.main(["import", "--format", "bfpc", "--src", str(clouds), "--out", str(tmp_path / "b"), "--time-unit",
                      "s"])
     assert bfpc == 1 and capsys.readouterr().err.startswith(
-        "error: --time-unit is for PCD, PLY and NPY clouds: format bfpc records the unit of its point times; drop "
-        "--time-unit")
+        "error: --time-unit is for PCD, PLY, NPY and ROSBAG2 clouds: format bfpc records the unit of its point times; "
+        "drop --time-unit")

@@ -1,12 +1,15 @@
 """memslidar detect end to end on an untrained smoke-profile SECOND: what it writes, what it keeps from the user's
-data (nothing but detections unless asked), and its errors. What the detections are worth is not tested here."""
+data (nothing but detections unless asked), ROS 2 bags in and MCAP out, and its errors. What the detections are worth
+is not tested here."""
 import json
 import logging
+import re
 import runpy
 import sys
 
 import numpy as np
 import pytest
+from rosbags.highlevel import AnyReader
 
 from pcdet_memslidar import cli
 from pcdet_memslidar.config import load_config
@@ -15,7 +18,10 @@ from pcdet_memslidar.io.formats import list_frames
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.models import build_network
 from pcdet_memslidar.monitor.detect import DetectOptions, FrameVoxeliser, detect
+from pcdet_memslidar.monitor.zones import read_zones
 from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
+from pcdet_memslidar.sim.site import get_domain
+from pcdet_memslidar.sim.writer import simulate_sequence_dataset
 
 REPO_CFG = "cfgs/m3.yaml"
 RECORDING = "pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc"
@@ -213,3 +219,93 @@ def test_a_time_unit_times_the_frames_of_a_folder_and_is_refused_for_a_kitti_lay
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["frames_with_point_times"] == 1
     with pytest.raises(ConfigError, match="format kitti records the unit of its point times; drop --time-unit"):
         list_frames("kitti", tmp_path, time_unit_s=1e-9)
+
+
+@pytest.fixture(scope="module")
+def simulated_sequence(tmp_path_factory):
+    """Six consecutive simulated frames of the industrial domain: a KITTI layout with the points' time offsets."""
+    out = tmp_path_factory.mktemp("sim") / "industrial"
+    simulate_sequence_dataset(get_domain("industrial"), 6, out, seed=0, progress=False)
+    return out
+
+
+def every_box_cfg():
+    """The smoke config keeping every box (score thresholds 0), so that an untrained model has tracks and events."""
+    cfg = load_config(REPO_CFG, ["MODEL.POST_PROCESSING.SCORE_THRESH", "0.0"], "smoke")
+    cfg.TRACKER = {"MIN_SCORE": 0.0}
+    return cfg
+
+
+def read_mcap(path) -> dict[str, list]:
+    """{topic: [(log time [ns], message), ...]} of an MCAP file, decoded with the definitions it carries."""
+    topics = {}
+    with AnyReader([path]) as reader:
+        for connection, stamp_ns, raw in reader.messages():
+            topics.setdefault(connection.topic, []).append((stamp_ns, reader.deserialize(raw, connection.msgtype)))
+    return topics
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_bag_of_simulated_frames_gives_the_detections_of_its_kitti_layout_and_an_mcap_of_them(
+        tmp_path, simulated_sequence, smoke_checkpoint, storage):
+    bag = tmp_path / "bag"
+    assert cli.main(["export-bag", "--src", str(simulated_sequence), "--out", str(bag), "--storage", storage,
+                     "--topic", "/cube/points"]) == 0
+    zones = tmp_path / "zones.yaml"
+    zones.write_text("zones:\n  - {name: hall, level: warning, polygon: [[0, -50], [60, -50], [60, 50], [0, 50]]}\n"
+                     "  - {name: door, level: protective, polygon: [[0, -20], [20, -20], [20, -15], [0, -15]]}\n")
+    records = {}
+    for name, src in (("kitti", simulated_sequence), ("bag", bag)):
+        out = tmp_path / f"detect_{name}"
+        summary = detect(every_box_cfg(), smoke_checkpoint, DetectOptions(src=src, out=out, zones=read_zones(zones),
+                                                                          mcap=tmp_path / f"{name}.mcap"))
+        assert summary["frames_with_point_times"] == 6 and summary["mcap"] == str(tmp_path / f"{name}.mcap")
+        records[name] = [json.loads(line) for line in (out / "detections.jsonl").read_text().splitlines()]
+    assert [r["source"] for r in records["bag"]] == [f"bag#{k}" for k in range(6)]
+    for record in records["kitti"] + records["bag"]:
+        del record["source"]
+    assert records["bag"] == records["kitti"]  # boxes, scores, tracks, zones, events and times, to the written digits
+    assert sum(len(r["events"]) for r in records["bag"]) > 0
+    topics = read_mcap(tmp_path / "bag.mcap")
+    assert sorted(topics) == ["/memslidar/detections", "/memslidar/events", "/memslidar/markers"]  # no points
+    stamps = [frame.stamp_ns for frame in list_frames("rosbag2", bag)]  # the input's header stamps
+    for messages in topics.values():
+        assert [stamp for stamp, _ in messages] == stamps
+    for record, (_, found), (_, events), (_, markers) in zip(records["bag"], topics["/memslidar/detections"],
+                                                             topics["/memslidar/events"], topics["/memslidar/markers"],
+                                                             strict=True):
+        assert len(found.detections) == len(record["detections"]) and json.loads(events.data) == record["events"]
+        for detection, expected in zip(found.detections, record["detections"]):
+            box = detection.bbox
+            heading = 2 * np.arctan2(box.center.orientation.z, box.center.orientation.w)
+            assert [box.center.position.x, box.center.position.y, box.center.position.z, box.size.x, box.size.y,
+                    box.size.z] == expected["box"][:6] and heading == pytest.approx(expected["box"][6], abs=1e-9)
+            assert detection.results[0].hypothesis.score == expected["score"]
+            assert detection.id == ("" if expected["track_id"] is None else str(expected["track_id"]))
+            assert detection.header.frame_id == "lidar"  # export-bag's frame id: no mount, boxes in its frame
+        kinds = [(marker.ns, marker.type) for marker in markers.markers]
+        assert kinds[0] == ("", 1) and markers.markers[0].action == 3  # DELETEALL first
+        assert kinds.count(("boxes", 1)) == len(record["detections"]) and kinds.count(("zones", 4)) == 2
+        assert kinds.count(("events", 9)) == len(record["events"])
+
+
+def test_detect_reads_a_bags_topic_and_writes_its_points_to_the_mcap_only_when_asked(tmp_path, simulated_sequence,
+                                                                                     smoke_checkpoint, capsys):
+    bag = tmp_path / "bag"
+    assert cli.main(["export-bag", "--src", str(simulated_sequence), "--out", str(bag)]) == 0
+    detect_cli = ["detect", "--cfg", REPO_CFG, "--profile", "smoke", "--ckpt", str(smoke_checkpoint), "--src",
+                  str(bag), "--topic", "/points", "--out", str(tmp_path / "out")]
+    assert cli.main([*detect_cli, "--mcap", str(tmp_path / "out" / "ros" / "run.mcap"), "--save-points"]) == 0
+    assert f"and {tmp_path / 'out' / 'ros' / 'run.mcap'}" in capsys.readouterr().out
+    points = read_mcap(tmp_path / "out" / "ros" / "run.mcap")["/memslidar/points"]  # inside --out: written with it
+    np.testing.assert_array_equal(np.frombuffer(points[2][1].data, np.float32).reshape(-1, 4),
+                                  np.fromfile(tmp_path / "out" / "points" / "000002.bin", np.float32).reshape(-1, 4))
+    for mcap, message in (("run.json", "--mcap run.json: name the file with the suffix .mcap"),
+                          (str(bag / "bag.mcap"), f"--mcap .* lies in the input {bag}")):
+        with pytest.raises(SystemExit):
+            cli.main([*detect_cli, "--mcap", str(mcap)])
+        assert re.search(message, capsys.readouterr().err)
+    with pytest.raises(SystemExit):
+        cli.main([*detect_cli[:-4], "--topic", "/lidar", "--out", str(tmp_path / "out2")])
+    assert f"{bag}: topic /lidar is not in it; its PointCloud2 topics: /points" in capsys.readouterr().err
+    assert not (tmp_path / "out2").exists()

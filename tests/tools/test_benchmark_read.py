@@ -1,0 +1,23 @@
+"""tools/benchmark_read.py: one small run prints the read time per frame of the KITTI layout and of both bag
+storages, as a ratio to the KITTI layout."""
+import json
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, capsys):
+    output = tmp_path / "read.json"
+    monkeypatch.setattr(sys, "argv", ["benchmark_read.py", "--frames", "3", "--points", "200", "--repeats", "1",
+                                      "--output", str(output)])
+    with pytest.raises(SystemExit) as done:
+        runpy.run_path(str(REPO / "tools" / "benchmark_read.py"), run_name="__main__")
+    assert done.value.code == 0
+    rows = json.loads(output.read_text())["rows"]
+    assert [row["source"] for row in rows] == ["KITTI .bin + time_offset/", "rosbag2, mcap", "rosbag2, sqlite3"]
+    assert all(row["ms_per_frame"] > 0 and row["points"] == 600 for row in rows)
+    assert "| rosbag2, mcap |" in capsys.readouterr().out

@@ -1,0 +1,88 @@
+"""Reading speed of ROS 2 bags: the time per frame to read the same frames from a rosbag2 folder (MCAP and sqlite3
+storage) and from KITTI .bin files, measured in one run.
+
+    python tools/benchmark_read.py                          # 50 frames of 30 000 points, median of 5 reads
+    python tools/benchmark_read.py --frames 200 --points 100000
+
+The frames are made here (seed 0: random points, each with a time offset) as a KITTI layout with
+training/time_offset/ (io.layout.write_frame) and exported as bags (io.rosbag.export_bag: float32 x, y, z,
+intensity and time). A read is what `memslidar detect` and `import` do: list the frames (io.formats.list_frames),
+then load every cloud with its time offsets. Each source is read once before timing (a warm page cache); its time
+is the median over --repeats reads; ratio = that source / the KITTI layout. Prints a Markdown table; JSON to
+output/benchmark/read_benchmark.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pcdet_memslidar.io.formats import list_frames
+from pcdet_memslidar.io.layout import KittiLayout, write_frame
+from pcdet_memslidar.io.rosbag import STORAGES, export_bag
+from pcdet_memslidar.utils.atomic import write_text
+
+FRAME_PERIOD_S = 0.1
+
+
+def make_sources(root: Path, frames: int, points: int) -> dict[str, tuple[str, Path]]:
+    """{source name: (format, path)}: the KITTI layout of `frames` random frames of `points` points, and its bags."""
+    rng = np.random.default_rng(0)
+    layout = KittiLayout(root / "kitti")
+    for index in range(frames):
+        cloud = np.column_stack([rng.uniform(1, 40, (points, 3)), rng.uniform(0, 255, points)]).astype(np.float32)
+        write_frame(layout, f"{index:06d}", cloud, [], np.zeros((0, 7)), {},
+                    time_offset=np.sort(rng.uniform(0, FRAME_PERIOD_S, points)).astype(np.float32))
+    sources = {"KITTI .bin + time_offset/": ("kitti", layout.root)}
+    for storage in STORAGES:
+        export_bag(list_frames("kitti", layout.root), root / storage, FRAME_PERIOD_S, storage)
+        sources[f"rosbag2, {storage}"] = ("rosbag2", root / storage)
+    return sources
+
+
+def read_ms(fmt: str, src: Path, repeats: int) -> tuple[float, int]:
+    """(median ms per frame over `repeats` reads after one warm-up read, points read per pass)."""
+    per_frame, count = [], 0
+    for _ in range(repeats + 1):
+        start = time.perf_counter()
+        frames = list_frames(fmt, src)
+        count = sum(len(frame.load().points) for frame in frames)
+        per_frame.append((time.perf_counter() - start) * 1000 / len(frames))
+    return statistics.median(per_frame[1:]), count
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--frames", type=int, default=50)
+    parser.add_argument("--points", type=int, default=30_000, help="points per frame")
+    parser.add_argument("--repeats", type=int, default=5, help="timed reads per source (median)")
+    parser.add_argument("--output", default="output/benchmark/read_benchmark.json")
+    args = parser.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory() as folder:
+        sources = make_sources(Path(folder), args.frames, args.points)
+        for name, (fmt, src) in sources.items():
+            ms, count = read_ms(fmt, src, args.repeats)
+            size = sum(path.stat().st_size for path in src.rglob("*") if path.is_file())
+            rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "points": count, "bytes": size})
+    if len({row["points"] for row in rows}) != 1:
+        raise RuntimeError(f"the sources gave different numbers of points: {rows}")
+    print(f"\n{args.frames} frames of {args.points} points (float32 x, y, z, intensity, time); median of "
+          f"{args.repeats} reads, page cache warm; ratio = source / KITTI\n")
+    print("| source | ms per frame | ratio | MB on disk |\n|---|---|---|---|")
+    for row in rows:
+        print(f"| {row['source']} | {row['ms_per_frame']:.2f} | {row['ms_per_frame'] / rows[0]['ms_per_frame']:.2f}x "
+              f"| {row['bytes'] / 1e6:.1f} |")
+    summary = {"frames": args.frames, "points": args.points, "repeats": args.repeats, "rows": rows}
+    write_text(Path(args.output), json.dumps(summary, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
