@@ -1,7 +1,8 @@
 """The `memslidar` command: one subcommand per pipeline stage.
 
 Each subcommand is a module of pcdet_memslidar.commands, which defines `add_arguments(parser)` and
-`run(args) -> int`; only the module of the command being run is imported, so `memslidar --help` stays fast.
+`run(args) -> int`; only the module of the command being run is imported, so `memslidar --help` stays fast, and
+only after the process policy is applied (policy.apply_process_policy: before torch loads).
 """
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import importlib
 import sys
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError, OutputError
+from pcdet_memslidar.policy import apply_process_policy
 
 # name -> (module of pcdet_memslidar.commands, one-line help), in pipeline order
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -76,6 +78,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    apply_process_policy()
     argv = sys.argv[1:] if argv is None else argv
     command = next((word for word in argv if not word.startswith("-")), None)
     parser = build_parser(command if command in COMMANDS else None)

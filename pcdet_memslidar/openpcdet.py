@@ -17,7 +17,8 @@ OpenPCDet has no plugin hook, so this launcher registers first and then runs the
   profile (runtime.checkpoint.trained_on), so that those are refused the same way;
 - torch.load's weights_only mode (the default from torch 2.6) is allowed the numpy scalars that OpenPCDet's one-cycle
   optimizer state holds, so stock OpenPCDet reloads its own checkpoints too.
-Our errors (ConfigError, DataFormatError) come out as one line and exit status 2.
+Our errors (ConfigError, DataFormatError) come out as one line and exit status 2. main() applies the process policy
+(policy.apply_process_policy) before anything imports torch: torch loads with register().
 """
 from __future__ import annotations
 
@@ -26,12 +27,10 @@ import runpy
 import sys
 from pathlib import Path
 
-import torch
-
 from pcdet_memslidar.config import apply_profile, cfg_from_yaml_file
 from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.grid import check_config_grid
-from pcdet_memslidar.runtime.checkpoint import grid_mismatch, numpy_scalar_globals, read_checkpoint, trained_on
+from pcdet_memslidar.policy import apply_process_policy
 
 USAGE = "usage: python -m pcdet_memslidar.openpcdet /path/to/OpenPCDet/tools/{train,test}.py [script arguments]"
 
@@ -46,7 +45,10 @@ def register() -> None:
                           f"checkout: `python setup.py develop`), or use the standalone tools (tools/train.py, "
                           f"`memslidar train`)") from error
 
+    import torch
+
     from pcdet_memslidar.datasets import MEMSLidarDataset
+    from pcdet_memslidar.runtime.checkpoint import numpy_scalar_globals
 
     pcdet.datasets.__all__["MEMSLidarDataset"] = MEMSLidarDataset
     if not getattr(pcdet.config.cfg_from_list, "memslidar", False):
@@ -89,6 +91,8 @@ def _grid_checked(load):
     """Wrap a Detector3DTemplate loader: read `filename` safely and refuse weights trained on another voxel grid
     (the checkpoint's record against the model's dataset) before OpenPCDet loads it."""
 
+    from pcdet_memslidar.runtime.checkpoint import grid_mismatch, read_checkpoint
+
     @functools.wraps(load)
     def checked(self, filename, *args, **kwargs):
         mismatch = grid_mismatch(read_checkpoint(filename), self)
@@ -108,6 +112,8 @@ def record_grid_in_checkpoints(tools_dir: Path) -> None:
     import pcdet.config
     from train_utils import train_utils
 
+    from pcdet_memslidar.runtime.checkpoint import trained_on
+
     original = train_utils.checkpoint_state
     if getattr(original, "memslidar", False):
         return
@@ -125,6 +131,7 @@ def record_grid_in_checkpoints(tools_dir: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Register, then run an OpenPCDet script with the remaining arguments as its command line."""
+    apply_process_policy()
     argv = sys.argv[1:] if argv is None else list(argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(USAGE)

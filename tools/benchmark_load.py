@@ -6,12 +6,12 @@ busy processes beside it, as shipped and with other OpenMP settings, measured in
 
 An edge box shares its cores. OpenMP threads (torch's and numba's share one libgomp pool) wait for each other at
 the end of every parallel region; libgomp's default lets a waiting thread spin, which on a busy machine takes the
-core from the very thread it waits for. As shipped, the package shortens that spin (pcdet_memslidar/__init__.py),
-inference takes only the cores no other process is using (runtime.common.threads_giving_way), and the commands ask
-Linux for a short time slice (utils.cores.shorten_time_slice). Each setting runs in a
-fresh process (libgomp reads its settings when it loads), first idle, then with the busy processes (pure-Python
-loops) started by this script; ratios are loaded / idle of the same setting. Prints a Markdown table; JSON to
-output/benchmark/load_benchmark.json.
+core from the very thread it waits for. As shipped, the entry points shorten that spin
+(policy.apply_process_policy), inference takes only the cores no other process is using
+(runtime.common.threads_giving_way), and the commands ask Linux for a short time slice
+(utils.cores.shorten_time_slice). Each setting runs in a fresh process (libgomp reads its settings when it
+loads), first idle, then with the busy processes (pure-Python loops) started by this script; ratios are loaded /
+idle of the same setting. Prints a Markdown table; JSON to output/benchmark/load_benchmark.json.
 """
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ import sys
 import time
 from pathlib import Path
 
+from pcdet_memslidar.policy import apply_process_policy
 from pcdet_memslidar.utils.atomic import write_text
 from pcdet_memslidar.utils.cores import available_cores, shorten_time_slice
 
@@ -111,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--give-way", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
+        apply_process_policy()  # as shipped, unless the setting's environment chose otherwise; before torch loads
         print(json.dumps(measure(args)))
         return 0
     rows = []

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from pcdet_memslidar.io.layout import KittiLayout
+from pcdet_memslidar.policy import apply_process_policy
 from pcdet_memslidar.sim.bodies import LODS, load_body_bank
 from pcdet_memslidar.sim.frame import frame_rng, get_caster, simulate_frame
 from pcdet_memslidar.sim.memory import keep_freed_memory
@@ -198,6 +199,7 @@ def main() -> None:
                         help="folder to write the frames into (default: /dev/shm, memory, so that the state of "
                              "the disk does not enter the timings; give a disk folder to include it)")
     args = parser.parse_args()
+    apply_process_policy()  # as `memslidar simulate` does
     print(f"writing into {args.where or tempfile.gettempdir()}")
     keep_freed_memory()  # as simulate_dataset does
     target = dataclasses.replace(get_domain("sim"), name="paper target (sim, 10 people)", people=(10, 10))

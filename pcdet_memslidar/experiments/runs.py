@@ -22,8 +22,10 @@ import torch
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.experiments.results import HEADLINE, json_safe, score_run
 from pcdet_memslidar.models import is_learned
+from pcdet_memslidar.policy import apply_process_policy, thread_share
 from pcdet_memslidar.runtime.common import create_logger
 from pcdet_memslidar.runtime.eval_loop import prediction_folder
+from pcdet_memslidar.runtime.experiment import Process, local_process
 from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.runtime.train import train
 from pcdet_memslidar.utils.atomic import write_text
@@ -53,11 +55,11 @@ def read_curve(run_dir: Path) -> list[dict]:
 
 
 def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress=None,
-                   every_epoch: bool = True) -> Path:
-    """runtime.train of cfg into run_dir (a run folder of another config is refused), with the loss and the AP on
-    the mix's validation split after every epoch (every_epoch False: the AP after the last epoch only) in
-    run_dir/curve.json; returns the final checkpoint. progress(epoch) is called after each epoch (and then the
-    training logs lines instead of drawing bars)."""
+                   every_epoch: bool = True, process: Process | None = None) -> Path:
+    """runtime.train of cfg into run_dir (a run folder of another config is refused) in `process` (default: this
+    process alone), with the loss and the AP on the mix's validation split after every epoch (every_epoch False: the
+    AP after the last epoch only) in run_dir/curve.json; returns the final checkpoint. progress(epoch) is called after
+    each epoch (and then the training logs lines instead of drawing bars)."""
     check_run_config(cfg, run_dir)
     curve = read_curve(run_dir)
 
@@ -71,8 +73,8 @@ def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress
             progress(epoch)
 
     val_interval = 1 if every_epoch else int(cfg.OPTIMIZATION.NUM_EPOCHS)
-    return train(cfg, run_dir, logger, seed=seed, workers=workers, on_epoch=record, val_interval=val_interval,
-                 use_tqdm_to_record=progress is not None)
+    return train(cfg, run_dir, logger, process, seed=seed, workers=workers, on_epoch=record,
+                 val_interval=val_interval, use_tqdm_to_record=progress is not None)
 
 
 def run_model(job: dict, progress=None) -> dict:
@@ -80,8 +82,9 @@ def run_model(job: dict, progress=None) -> dict:
     every_epoch (validate after every epoch, else after the last)}; returns
     its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there. Runs
     in the calling process or in a worker process of `reproduce` (then it logs to run_dir/log.txt only, and
-    progress(epoch) reports its epochs)."""
-    torch.set_num_threads(job["threads"])
+    progress(epoch) reports its epochs). The process runs on job["threads"] torch threads, with their execution
+    policy."""
+    process = local_process(job["threads"])
     cfg, run_dir = job["cfg"], Path(job["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
     learned = is_learned(cfg.MODEL)  # a detector without weights is only tested, again whenever asked: it is cheap
@@ -95,10 +98,10 @@ def run_model(job: dict, progress=None) -> dict:
     logger = create_logger(run_dir / "log.txt", name=f"pcdet_memslidar.{job['model']}.{job['seed']}",
                            console=progress is None)
     started = time.perf_counter()
-    checkpoint = (train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress, job["every_epoch"])
-                  if learned else None)
+    checkpoint = (train_detector(cfg, run_dir, job["seed"], job["workers"], logger, progress, job["every_epoch"],
+                                 process) if learned else None)
     trained = time.perf_counter()
-    result = predict(cfg, checkpoint, run_dir / "eval", logger, workers=job["workers"])
+    result = predict(cfg, checkpoint, run_dir / "eval", logger, process, workers=job["workers"])
     pred_dir = prediction_folder(run_dir / "eval") / cfg.DATA_CONFIG.TEST_SOURCE.NAME
     ms_per_frame = float(result["infer_time_ms"])
     run = {"seed": job["seed"], **score_run(Path(job["gt_dir"]), pred_dir),
@@ -141,6 +144,7 @@ def run_jobs(jobs: list[dict], parallel: int, logger) -> list[dict]:
     if parallel <= 1:
         return [run_model(job) for job in jobs]
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch thread pools
+    apply_process_policy()  # the OpenMP wait hint, in the environment the workers inherit (their libgomp reads it)
     pool = ProcessPoolExecutor(parallel, mp_context=context, initializer=exit_with_parent)  # ends with this one
     with context.Manager() as manager, pool, \
             progress_bar(total=total, desc=f"training ({parallel} at once)", unit="epoch") as bar:
@@ -217,6 +221,6 @@ def training_jobs(cfgs: dict, seeds: int, runs_dir: Path, gt_dir: Path, out: Pat
     runs_dir/<name>/seed_<k> on its share of the cores (`parallel` runs at once), validated after every epoch
     (every_epoch) or after the last one only."""
     return [{"model": name, "seed": seed, "cfg": cfg, "run_dir": runs_dir / name / f"seed_{seed}", "gt_dir": gt_dir,
-             "out": out, "workers": workers, "threads": max(1, available_cores() // parallel),
+             "out": out, "workers": workers, "threads": thread_share(parallel),
              "every_epoch": every_epoch}
             for seed in range(seeds) for name, cfg in cfgs.items()]

@@ -12,9 +12,8 @@ from torch import nn
 from pcdet_memslidar.grid import SPARSE_OUTPUT_CHANNELS, SPARSE_STRIDE, sparse_output_shape
 from pcdet_memslidar.models import rulebook
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
-from pcdet_memslidar.utils.cores import free_threads
+from pcdet_memslidar.policy import ExecutionPolicy, choose_policy
 
-patch_spconv()
 _batch_norm = partial(nn.BatchNorm1d, eps=1e-3, momentum=0.01)
 
 
@@ -34,15 +33,17 @@ def sparse_block(in_channels: int, out_channels: int, kernel_size, indice_key: s
 class VoxelBackBone8x(nn.Module):
     """Sparse convs 16-32-64-64 channels, 8x downsampling, then a (3,1,1) z-conv to 128 channels.
 
-    On a CPU models.rulebook runs the convs in inference, and in training on more than one torch thread (where it is
-    the faster: docs/benchmarks.md#training-speed);
-    otherwise spconv runs them, on one torch thread on a CPU (its CPU kernels race with more, see spconv_cpu). In
-    training the rulebook's convs take only the cores other processes leave free at each step (their results do not
-    depend on the thread count), as inference does through runtime.common.threads_giving_way.
+    `policy` (pcdet_memslidar.policy, set by the runtime through the detector's set_policy) says which back end runs
+    the convs, models.rulebook or spconv, with grad and without, and on how many threads; spconv on a CPU runs on one
+    (its CPU kernels race with more, see spconv_cpu). Without a policy (a model used outside the runtime) each forward
+    follows choose_policy for its input's device and torch's threads at that moment. Building one makes spconv
+    correct on a CPU (spconv_cpu.patch_spconv).
     """
 
     def __init__(self, model_cfg, input_channels: int, grid_size, **kwargs):
         super().__init__()
+        patch_spconv()
+        self.policy: ExecutionPolicy | None = None
         self.model_cfg = model_cfg
         self.sparse_shape = (np.asarray(grid_size)[::-1] + [1, 0, 0]).tolist()  # (z + 1, y, x)
         self.conv_input = spconv.SparseSequential(
@@ -81,15 +82,20 @@ class VoxelBackBone8x(nn.Module):
                 features.new_zeros(0, self.num_point_features), batch_dict["voxel_coords"].new_zeros(0, 4).int(),
                 sparse_output_shape(self.sparse_shape), batch_dict["batch_size"])
             return batch_dict
-        on_cpu = features.device.type == "cpu"
-        use_rulebook = on_cpu and (not torch.is_grad_enabled() or torch.get_num_threads() > 1)
-        conv_threads = free_threads(torch.get_num_threads()) if use_rulebook and torch.is_grad_enabled() else None
+        device, grad = features.device.type, torch.is_grad_enabled()
+        policy = self.policy or choose_policy(device, torch.get_num_threads())
+        if policy.device != device:
+            raise ValueError(f"the sparse backbone's execution policy is for {policy.device}, its input is on "
+                             f"{device}: give the detector the policy of its device (set_policy(policy.choose_policy("
+                             f"'{device}', threads)))")
+        use_rulebook = policy.sparse_backend(grad) == "rulebook"
+        conv_threads = policy.rulebook_threads(grad) if use_rulebook else None
         rulebooks = {}  # indice_key -> Rulebook, shared as spconv shares its indices
 
         def step(module, tensor):
             return rulebook.run(module, tensor, rulebooks, conv_threads) if use_rulebook else module(tensor)
 
-        with single_thread() if on_cpu and not use_rulebook else contextlib.nullcontext():
+        with single_thread() if device == "cpu" and not use_rulebook else contextlib.nullcontext():
             x = spconv.SparseConvTensor(features=features, indices=batch_dict["voxel_coords"].int(),
                                         spatial_shape=self.sparse_shape, batch_size=batch_dict["batch_size"])
             x = step(self.conv_input, x)

@@ -27,6 +27,7 @@ from pcdet_memslidar.datasets.dataset import BACKGROUND_FEATURE
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.box_from_points import fit_boxes_to_points
 from pcdet_memslidar.models.post_processing import box_from_points
+from pcdet_memslidar.policy import ExecutionPolicy
 
 SETTINGS = {"CLUSTER_RADIUS": 0.25, "MIN_POINTS": 8, "HEIGHT_RANGE": [0.8, 2.3], "MAX_LENGTH": 1.2,
             "BOX_SIZE": [0.8, 0.6]}  # defaults of MODEL.BACKGROUND_SUBTRACTION
@@ -103,6 +104,9 @@ class BackgroundSubtraction(nn.Module):
         self.column = 1 + features.index(BACKGROUND_FEATURE)  # batch points: [frame, x, y, z, ...]
         self.box_from_points = box_from_points(model_cfg.POST_PROCESSING)
         self.register_buffer("global_step", torch.LongTensor(1).zero_())
+
+    def set_policy(self, policy: ExecutionPolicy) -> None:
+        """Nothing to set: no network."""
 
     def set_precision(self, precision: str, training: bool = False) -> None:
         """Nothing to set: no network."""

@@ -30,6 +30,7 @@ from pcdet_memslidar.models.post_processing import (
     size_limits,
 )
 from pcdet_memslidar.models.vfe import MeanVFE
+from pcdet_memslidar.policy import ExecutionPolicy
 
 # precision of the dense 2D part (BEV backbone and head), fast in bf16 on CPUs with bf16 matrix units (AMX,
 # AVX512-BF16) and GPUs; the sparse 3D part, box decoding, NMS, the loss and the weights stay fp32
@@ -147,6 +148,11 @@ class Detector3DTemplate(nn.Module, abc.ABC):
 
     def update_global_step(self) -> None:
         self.global_step += 1
+
+    def set_policy(self, policy: ExecutionPolicy) -> None:
+        """Run with the execution `policy` (pcdet_memslidar.policy: threads and sparse-conv back end), which the
+        sparse backbone reads; the runtime sets its process's policy when it builds or loads a detector."""
+        self.backbone_3d.policy = policy
 
     def set_precision(self, precision: str, training: bool = False) -> None:
         """Precision of the BEV backbone and head (PRECISIONS) in inference, or in training with training=True (bf16:

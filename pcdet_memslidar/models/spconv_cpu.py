@@ -3,7 +3,8 @@
 spconv's CPU wheel asks CUDA for its current stream in the backward pass even for CPU tensors; with CUDA absent
 that raises "Torch not compiled with CUDA enabled". Its CPU scatter-add also races with more than one torch
 thread (forward and backward outputs off by up to about 30 %). So the forward of the sparse backbone runs inside
-`single_thread()`, and `patch_spconv()` makes every spconv autograd backward run on one thread as well.
+`single_thread()`, and `patch_spconv()` makes every spconv autograd backward run on one thread as well; building a
+VoxelBackBone8x applies it (importing changes nothing).
 Every SparseConvTensor asks torch.fx whether it is being traced, and torch logs a notice about that question (once
 per process, so once per training process of `memslidar reproduce`): `patch_spconv()` keeps it out of the log.
 """

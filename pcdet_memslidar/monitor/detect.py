@@ -43,6 +43,7 @@ from pcdet_memslidar.monitor.plots import plot_tracks_frame
 from pcdet_memslidar.monitor.tracker import Tracker, TrackerConfig
 from pcdet_memslidar.monitor.zones import Zone, ZoneMonitor
 from pcdet_memslidar.runtime.common import threads_giving_way
+from pcdet_memslidar.runtime.experiment import Process
 from pcdet_memslidar.runtime.predict import load_detector
 from pcdet_memslidar.sim.pattern import get_pattern
 from pcdet_memslidar.utils.atomic import atomic_dir, check_output_folder, refuse_overlap, write_text
@@ -147,7 +148,8 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
                       options.zones or [])
     voxeliser = FrameVoxeliser(cfg, logger)
     watch = BackgroundWatch(voxeliser.background, logger) if voxeliser.background is not None else None
-    model, _ = load_detector(cfg, checkpoint, voxeliser, device, logger, options.precision)
+    process = Process(torch.device(device), torch.get_num_threads())  # its execution policy: Process.policy
+    model, _ = load_detector(cfg, checkpoint, voxeliser, process, logger, options.precision)
     batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
     seconds, counts = Counter(), Counter()
     started = time.perf_counter()

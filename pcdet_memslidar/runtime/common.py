@@ -10,6 +10,7 @@ from typing import Callable, Iterator
 import numpy as np
 import torch
 
+from pcdet_memslidar.policy import thread_share
 from pcdet_memslidar.utils.cores import available_cores, free_threads
 
 
@@ -23,9 +24,9 @@ def set_random_seed(seed: int) -> None:
 
 
 def set_torch_threads(local_world_size: int = 1) -> int:
-    """Give each of the `local_world_size` processes on this machine an equal share of the free cores;
-    over-subscribed threads are many times slower than one thread per core. Returns the thread count."""
-    threads = max(1, available_cores() // max(1, local_world_size))
+    """Give each of the `local_world_size` processes on this machine an equal share of the free cores
+    (policy.thread_share) as torch threads. Returns the thread count."""
+    threads = thread_share(local_world_size)
     torch.set_num_threads(threads)
     return threads
 

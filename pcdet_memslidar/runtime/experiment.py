@@ -10,6 +10,7 @@ from pathlib import Path
 import torch
 
 from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.policy import ExecutionPolicy, choose_policy
 from pcdet_memslidar.runtime.common import get_device, set_torch_threads
 from pcdet_memslidar.runtime.distributed import init_dist_pytorch, local_world_size
 from pcdet_memslidar.utils.cores import shorten_time_slice
@@ -28,9 +29,17 @@ class Process:
     rank: int = 0
     world_size: int = 1
 
+    @property
+    def policy(self) -> ExecutionPolicy:
+        """How detectors execute in this process (policy.choose_policy of its device and threads)."""
+        return choose_policy(self.device.type, self.threads)
 
-def local_process() -> Process:
-    """This process alone: the first CUDA device (else the CPU) with the torch threads it already has."""
+
+def local_process(threads: int | None = None) -> Process:
+    """This process alone: the first CUDA device (else the CPU) with `threads` torch threads (None: the ones it
+    already has)."""
+    if threads is not None:
+        torch.set_num_threads(threads)
     return Process(get_device(), torch.get_num_threads())
 
 

@@ -12,8 +12,8 @@ import logging
 
 from easydict import EasyDict
 
-from ..datasets.augmentor.data_augmentor import DataAugmentor
-from ..errors import ConfigError
+from pcdet_memslidar.datasets.augmentor.data_augmentor import DataAugmentor
+from pcdet_memslidar.errors import ConfigError
 
 HOOKS = ("DisableAugmentationHook",)
 

@@ -27,19 +27,20 @@ def test_loader(cfg, logger, process: Process | None = None, workers: int = 0):
     return dataset, loader
 
 
-def load_detector(cfg, checkpoint: str | Path | None, dataset, device, logger,
+def load_detector(cfg, checkpoint: str | Path | None, dataset, process: Process, logger,
                   precision: str = PRECISIONS[0]) -> tuple[torch.nn.Module, int | None]:
-    """(cfg's detector with the weights of `checkpoint`, in eval mode on `device` with the inference `precision`
-    (models.detector.PRECISIONS); the checkpoint's epoch). dataset gives the grid (a DatasetTemplate); a checkpoint of
-    another model or grid is refused, naming it. A detector without weights (models.is_learned) takes no checkpoint
-    (None)."""
+    """(cfg's detector with the weights of `checkpoint`, in eval mode on the process's device with its execution
+    policy and the inference `precision` (models.detector.PRECISIONS); the checkpoint's epoch). dataset gives the grid
+    (a DatasetTemplate); a checkpoint of another model or grid is refused, naming it. A detector without weights
+    (models.is_learned) takes no checkpoint (None)."""
     if is_learned(cfg.MODEL) == (checkpoint is None):
         raise ConfigError(f"MODEL.NAME {cfg.MODEL.NAME} " + ("needs a checkpoint: pass --ckpt" if checkpoint is None
                                                              else "has no weights: leave out --ckpt"))
-    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=dataset).to(device)
+    model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=dataset).to(process.device)
     model.profile = cfg.get("PROFILE")  # named when a checkpoint of another grid is refused
+    model.set_policy(process.policy)
     model.set_precision(precision)
-    if precision == "bf16" and torch.device(device).type == "cpu" and not torch.cpu._is_avx512_bf16_supported():
+    if precision == "bf16" and process.device.type == "cpu" and not torch.cpu._is_avx512_bf16_supported():
         logger.warning("--precision bf16 on a CPU without AVX512-BF16 or AMX: bf16 is emulated there and slower "
                        "than fp32")
     epoch = None if checkpoint is None else load_params_from_file(model, checkpoint, logger, strict=True).get("epoch")
@@ -54,6 +55,6 @@ def predict(cfg, checkpoint: str | Path | None, result_dir: Path, logger, proces
     when None; precision: load_detector's."""
     process = process or local_process()
     dataset, data_loader = loader or test_loader(cfg, logger, process, workers)
-    model, epoch = load_detector(cfg, checkpoint, dataset, process.device, logger, precision)
+    model, epoch = load_detector(cfg, checkpoint, dataset, process, logger, precision)
     return eval_one_epoch(cfg, model, data_loader, epoch, logger, process.device, dist_test=process.dist,
                           result_dir=result_dir, save_to_file=save_to_file)

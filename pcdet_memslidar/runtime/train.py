@@ -40,12 +40,13 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     two stages (runtime.pretrain; stage 1 is skipped when `pretrained_model` is given) and on_epoch counts their
     epochs on.
 
-    process: where it runs (default: this process alone); with process.dist the model is wrapped in
-    DistributedDataParallel. seed: seeds Python, numpy and torch (plus the rank) and the data order (None: random).
-    After every epoch on_epoch(epoch, mean_loss, val_result, seconds) runs on every rank: val_result is the AP on
-    the mix's validation split when the epoch is a multiple of `val_interval` (0: never; else None; {} on ranks
-    other than 0), seconds the epoch's training wall time without validation. loop_options go to train_model
-    (checkpoint intervals, log interval, tqdm, amp); tb_log gets its per-iteration scalars.
+    process: where it runs, and the execution policy of its detector (default: this process alone); with
+    process.dist the model is wrapped in DistributedDataParallel. seed: seeds Python, numpy and torch (plus the
+    rank) and the data order (None: random). After every epoch on_epoch(epoch, mean_loss, val_result, seconds) runs
+    on every rank: val_result is the AP on the mix's validation split when the epoch is a multiple of `val_interval`
+    (0: never; else None; {} on ranks other than 0), seconds the epoch's training wall time without validation.
+    loop_options go to train_model (checkpoint intervals, log interval, tqdm, amp); tb_log gets its per-iteration
+    scalars.
     """
     process = process or local_process()
     pretraining, cfg = split_stages(cfg)
@@ -76,6 +77,7 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     model, optimizer, lr_scheduler, it, start_epoch = prepare_training(
         cfg, train_set, ckpt_dir, process.device, iters_per_epoch, epochs, logger, resume_from=resume_from,
         pretrained_model=pretrained_model, sync_bn=sync_bn and process.dist and process.device.type == "cuda")
+    model.set_policy(process.policy)
     if process.dist:
         device_ids = [process.device.index] if process.device.type == "cuda" else None
         model = torch.nn.parallel.DistributedDataParallel(model, device_ids=device_ids)

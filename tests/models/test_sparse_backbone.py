@@ -11,7 +11,8 @@ import torch
 from easydict import EasyDict
 from torch.nn import functional as F
 
-from pcdet_memslidar.models import backbone_3d, rulebook
+from pcdet_memslidar import policy
+from pcdet_memslidar.models import rulebook
 from pcdet_memslidar.models.backbone_3d import VoxelBackBone8x
 from pcdet_memslidar.models.map_to_bev import HeightCompression
 from pcdet_memslidar.models.spconv_cpu import patch_spconv, single_thread
@@ -182,9 +183,9 @@ def test_training_runs_the_rulebook_on_two_threads_and_spconv_on_one_with_the_sa
         return dense.detach(), {"features": inputs.grad} | {n: p.grad.clone() for n, p in
                                                             backbone.named_parameters()}
 
-    monkeypatch.setattr(backbone_3d, "free_threads", lambda limit: limit)  # an idle machine
+    monkeypatch.setattr(policy, "free_threads", lambda limit: limit)  # an idle machine
     ours, again, reference, three = gradients(2), gradients(2), gradients(1), gradients(3)
-    monkeypatch.setattr(backbone_3d, "free_threads", lambda limit: 1)  # three busy processes on two cores
+    monkeypatch.setattr(policy, "free_threads", lambda limit: 1)  # three busy processes on two cores
     loaded = gradients(2)
     assert calls == [2] * 12 + [3] * 6 + [1] * 6  # four training steps of six sparse stages, none on spconv's 1
     for other in (again, three, loaded):
@@ -201,8 +202,8 @@ def test_patch_is_idempotent_and_single_thread_restores():
     import spconv.pytorch.functional as functional
     import spconv.pytorch.ops as ops
 
-    backward = functional.SubMConvFunction.backward
     patch_spconv()
+    backward = functional.SubMConvFunction.backward
     patch_spconv()
     assert functional.SubMConvFunction.backward is backward  # wrapped once only
     if not torch.cuda.is_available():

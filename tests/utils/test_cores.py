@@ -70,16 +70,6 @@ def test_inference_threads_give_way_to_other_processes_and_come_back(monkeypatch
         torch.set_num_threads(before)
 
 
-@pytest.mark.parametrize("given, expected", [({}, "10000"), ({"GOMP_SPINCOUNT": "500"}, "500"),
-                                             ({"OMP_WAIT_POLICY": "PASSIVE"}, "unset")])
-def test_the_package_shortens_libgomps_spin_unless_the_user_set_it(given, expected):
-    """A GOMP_SPINCOUNT overrides OMP_WAIT_POLICY in libgomp, so a user's wait policy must keep it unset."""
-    env = {key: value for key, value in os.environ.items() if key not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
-    done = subprocess.run([sys.executable, "-c", "import os, pcdet_memslidar; print(os.environ.get('GOMP_SPINCOUNT', "
-                           "'unset'))"], env={**env, **given}, capture_output=True, text=True, timeout=60, check=True)
-    assert done.stdout.strip() == expected
-
-
 _SLICE_PROBE = """
 import json, os, threading
 from pcdet_memslidar.utils.cores import shorten_time_slice

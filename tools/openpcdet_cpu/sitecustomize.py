@@ -92,8 +92,11 @@ class _StandInFinder(importlib.abc.MetaPathFinder):
 
 
 def _torch_on_cpu() -> None:
-    import pcdet_memslidar  # noqa: F401, I001 (first: it sets OpenMP's spin count before torch loads libgomp)
+    from pcdet_memslidar.policy import apply_process_policy
+
+    apply_process_policy()  # first: libgomp reads OpenMP's wait hint when torch loads it
     import torch
+
     from pcdet_memslidar.models.spconv_cpu import patch_spconv
 
     if torch.cuda.is_available():
