@@ -166,6 +166,7 @@ def _launch(tmp_path, env, script: str, *arguments: str) -> subprocess.Completed
     return subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("experiment", ["m3.yaml", "centerpoint/m3.yaml"])
 def test_stock_train_script_runs_on_memslidar_through_the_launcher(tmp_path, memslidar_data, experiment):
     env = _fake_openpcdet(tmp_path)
@@ -183,6 +184,7 @@ def test_stock_train_script_runs_on_memslidar_through_the_launcher(tmp_path, mem
     assert "gt_sampling" in configured and report["augmentations"] == [n for n in configured if n != "gt_sampling"]
 
 
+@pytest.mark.slow
 def test_stock_test_script_refuses_a_checkpoint_of_another_grid_and_loads_one_of_its_own(tmp_path, memslidar_data):
     """A quick-grid checkpoint under the paper grid would load half-way in OpenPCDet and evaluate anyway: the
     launcher refuses it in one line; with its profile it loads, numpy scalars in its optimizer state included."""
@@ -205,6 +207,7 @@ def test_stock_test_script_refuses_a_checkpoint_of_another_grid_and_loads_one_of
     assert json.loads(loaded.stdout.strip().splitlines()[-1]) == {"epoch": 2}
 
 
+@pytest.mark.slow
 def test_a_checkpoint_openpcdets_training_writes_is_refused_on_another_grid(tmp_path, memslidar_data):
     """OpenPCDet's own training (through the launcher) records the grid and profile in its checkpoints, so its
     test.py refuses them under another profile instead of loading half of the weights."""

@@ -6,6 +6,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+pytestmark = pytest.mark.slow  # minutes of training, simulation or installing: `pytest -m 'not slow'` leaves it out
+
 REPO = Path(__file__).resolve().parents[1]
 
 

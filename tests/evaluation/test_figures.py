@@ -1,5 +1,6 @@
 """Figures on hand-made results (no training): example frames chosen by their rule, valid PNGs."""
 import numpy as np
+import pytest
 
 from pcdet_memslidar.evaluation.figures import (
     choose_example_frames,
@@ -38,6 +39,7 @@ def test_example_frames_chosen_by_their_documented_rule():
     assert [e.index for e in choose_example_frames(gt, {"M1": faint})] == [1, 0, 2]
 
 
+@pytest.mark.slow
 def test_figures_are_written(tmp_path):
     rng = np.random.default_rng(0)
     boxes = np.array([person(12, 0), person(14, 1)])

@@ -192,6 +192,7 @@ def random_scene(rng, frames=25):
     return gt_annos, dt_annos
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_random_scenes_match_independent_reference(seed):
     gt_annos, dt_annos = random_scene(np.random.default_rng(seed))

@@ -8,6 +8,8 @@ from pcdet_memslidar.experiments.reproduce import model_config, reproduce
 from pcdet_memslidar.runtime import train_loop
 from pcdet_memslidar.runtime.pretrain import split_stages
 
+pytestmark = pytest.mark.slow  # minutes of training, simulation or installing: `pytest -m 'not slow'` leaves it out
+
 
 def test_stages_share_the_epochs_and_scale_the_fine_tuning_lr(tmp_path):
     cfg = model_config("M5", "quick", tmp_path, ["PRETRAIN.FINETUNE_LR_SCALE", "0.5"])  # 2 epochs, LR 0.002

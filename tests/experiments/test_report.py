@@ -171,6 +171,7 @@ def write_labels(folder: Path, frames: list[list], scores: list[list] | None = N
                                                                    None if scores is None else np.array(scores[index])))
 
 
+@pytest.mark.slow
 def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     # two frames of one person each: 'half' finds frame 0 and has a false positive in frame 1 (AP 1, 1/2 or 0 as
     # frame 0 is drawn twice, once or never), 'mirror' the other way round, 'perfect' finds both

@@ -18,6 +18,8 @@ from pcdet_memslidar.sim.frame import simulate_frame
 from pcdet_memslidar.sim.site import load_site
 from pcdet_memslidar.sim.writer import simulate_empty_recording
 
+pytestmark = pytest.mark.slow  # minutes of training, simulation or installing: `pytest -m 'not slow'` leaves it out
+
 ROOT = Path(__file__).resolve().parents[2]
 SITE = ROOT / "examples" / "blickfeld_room.yaml"
 RECORDING = ROOT / "pcdet_memslidar" / "assets" / "blickfeld" / "cube1_sample_2020.bfpc"

@@ -26,6 +26,8 @@ from pcdet_memslidar.runtime.predict import predict
 from pcdet_memslidar.sim.site import get_domain
 from pcdet_memslidar.sim.writer import simulate_dataset
 
+pytestmark = pytest.mark.slow  # minutes of training, simulation or installing: `pytest -m 'not slow'` leaves it out
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 SMOKE_COUNTS = {"M1": (0, 20), "M2": (20, 0), "M3": (10, 10), "M4": (14, 6)}  # Table 2 at TOTAL 20: sim, real
 

@@ -105,6 +105,7 @@ def test_smoke_sweep_writes_its_table_and_figure_and_resumes(tmp_path, monkeypat
     assert "memslidar sweep ratio --grid 0 100 --profile smoke --seeds 1" in text
 
 
+@pytest.mark.slow
 def test_a_sweep_point_is_validated_after_its_last_epoch_only(tmp_path):
     out = tmp_path / "sweep"
     sweep("ratio", "smoke", 1, out, tmp_path / "data", jobs=1, grid=[0], set_cfgs=["OPTIMIZATION.NUM_EPOCHS", "2"])

@@ -103,6 +103,7 @@ def test_a_sensor_turned_about_the_vertical_is_found_again_without_labels(yaw):
     assert abs(found - yaw) <= 0.1 and share < 0.002
 
 
+@pytest.mark.slow
 def test_the_feature_is_the_same_for_a_bfpc_frame_and_its_kitti_import(tmp_path):
     model, _ = room_model(7)
     model.save(tmp_path / "background.npz")

@@ -8,6 +8,7 @@ from pcdet_memslidar.errors import DataFormatError
 from pcdet_memslidar.io.bfpc import read_bfpc
 
 
+@pytest.mark.slow
 def test_real_recording_frames_and_pulses(real_bfpc):
     assert len(real_bfpc.frames) == 10
     assert [frame.num_pulses for frame in real_bfpc.frames] == [12312] * 10

@@ -25,6 +25,7 @@ def recording(real_recording):
     return read_bfpc(real_recording)
 
 
+@pytest.mark.slow
 def test_real_recording_imports_with_a_given_mount(tmp_path, real_recording, recording):
     mount = Mount(2.0, 10.0)
     report = import_dataset("bfpc", real_recording, tmp_path / "real", mount=mount)

@@ -181,6 +181,7 @@ def test_every_parameter_gets_a_finite_gradient_with_empty_and_boxless_frames(ce
     assert alone[0]["pred_boxes"].shape[1] == 7 and recall["gt"] == len(frames.frames[2]["gt_boxes"]) > 0
 
 
+@pytest.mark.slow
 def test_overfits_a_handful_of_frames_in_fp32_and_bf16(tmp_path, center_model_cfg, overfit, small_range,
                                                       person_voxel):
     dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)

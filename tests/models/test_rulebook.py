@@ -56,6 +56,7 @@ def test_gradients_of_the_submanifold_conv_at_a_corner():
                                   spconv.SparseConv3d(3, 4, 3, stride=2, padding=1, bias=False),
                                   spconv.SparseConv3d(3, 4, (3, 1, 1), stride=(2, 1, 1), bias=False)],
                          ids=["subm", "stride 2", "conv_out"])
+@pytest.mark.slow
 def test_backward_equals_finite_differences_in_float64(conv):
     generator = torch.Generator().manual_seed(0)
     shape = [7, 9, 8]

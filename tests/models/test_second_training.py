@@ -56,6 +56,7 @@ def test_inference_on_empty_and_boxless_frames(frames, seeded_model):
     assert recall["gt"] == sum(len(frames.frames[i]["gt_boxes"]) for i in range(4))
 
 
+@pytest.mark.slow
 def test_overfits_a_handful_of_frames_to_ap_above_0_9(tmp_path, seeded_model, small_model_cfg, overfit, small_range,
                                                      person_voxel):
     dataset = SyntheticPersonDataset(small_range, person_voxel, num_frames=4, seed=0)

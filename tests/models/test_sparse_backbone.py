@@ -151,6 +151,7 @@ def test_inference_runs_the_rulebook_and_equals_spconv_and_dense_conv3d_at_two_t
     assert torch.get_num_threads() == 2
 
 
+@pytest.mark.slow
 def test_training_runs_the_rulebook_on_two_threads_and_spconv_on_one_with_the_same_gradients(second_model_cfg,
                                                                                             monkeypatch):
     """Training mode (batch statistics in the BatchNorms), two frames, float64: the rulebook on 2 threads gives
@@ -233,6 +234,7 @@ def test_height_compression_places_every_voxel_exactly_at_two_threads(two_thread
     assert torch.equal(bev[b[0], 1 * shape[0] + z[0], y[0], x[0]], features[0, 1])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("patched", [False, True])
 def test_torch_fx_notice_stays_out_of_the_log_once_spconv_is_patched(patched):
     """Every SparseConvTensor asks torch.fx whether it traces; torch logs a notice the first time in a process."""

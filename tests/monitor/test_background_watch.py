@@ -85,6 +85,7 @@ def test_a_turned_sensor_is_realigned_from_its_first_frame_and_gives_the_unturne
     assert abs(event["yaw_deg"] - yaw) <= 0.1 and event["foreground_share_after"] < 0.05
 
 
+@pytest.mark.slow
 def test_a_site_that_changed_is_reported_once_naming_its_frames(room, caplog):
     cfg, tmp = room
     with caplog.at_level(logging.WARNING):
@@ -96,6 +97,7 @@ def test_a_site_that_changed_is_reported_once_naming_its_frames(room, caplog):
     assert len(warnings) == 1 and warnings[0].startswith("frames 000000.bin to 000009.bin: ")
 
 
+@pytest.mark.slow
 def test_with_a_background_from_three_frames_the_other_seven_empty_frames_raise_no_alarm(tmp_path):
     site = load_site(ROOM)
     learn_background(dataclasses.replace(site, background=Background(site.background.recording, (0, 3)))).save(
@@ -112,6 +114,7 @@ def test_with_a_background_from_three_frames_the_other_seven_empty_frames_raise_
     assert summary["frames"] == 7 and summary["detections"] == 0 and summary["background_events"] == []
 
 
+@pytest.mark.slow
 def test_a_long_mismatch_searches_for_a_turn_once_every_mismatch_frames(room, monkeypatch):
     cfg, tmp = room
     searches = []

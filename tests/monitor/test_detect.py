@@ -58,6 +58,7 @@ def written_files(folder):
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
 
 
+@pytest.mark.slow
 def test_detect_on_the_real_recording_keeps_detections_not_points(tmp_path, bundled_asset, smoke_checkpoint):
     recording = bundled_asset(RECORDING, RECORDING_SHA256)
     zones = tmp_path / "zones.yaml"
@@ -164,6 +165,7 @@ def test_cli_errors_name_the_file(tmp_path, frames_folder, smoke_checkpoint, cap
     assert f"{zones}" in capsys.readouterr().err and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_recordings_out_of_time_order_are_refused(tmp_path, bundled_asset, smoke_checkpoint):
     recording = bundled_asset(RECORDING, RECORDING_SHA256)
     folder = tmp_path / "recordings"
@@ -177,6 +179,7 @@ def test_recordings_out_of_time_order_are_refused(tmp_path, bundled_asset, smoke
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_batched_frames_give_the_detections_of_single_frames(tmp_path, bundled_asset, smoke_checkpoint):
     """The CPU default (one frame per forward pass) and a GPU-style batch keep the same boxes; every box is kept
     (score thresholds 0) so that an untrained model has detections to compare."""

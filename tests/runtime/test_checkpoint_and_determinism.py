@@ -55,6 +55,7 @@ def train(small_model_cfg, small_optim_cfg):
     return run
 
 
+@pytest.mark.slow
 def test_fixed_seed_gives_identical_weights_twice_and_resume_is_exact(dataset, tmp_path, train):
     first, _ = train(dataset, tmp_path / "a")
     second, _ = train(dataset, tmp_path / "b")
@@ -100,6 +101,7 @@ def test_a_mismatching_checkpoint_is_refused_with_the_file_name(dataset, tmp_pat
         load_params_from_file(build_network(wide, 1, dataset), tmp_path / "missing.pth")
 
 
+@pytest.mark.slow
 def test_validation_between_epochs_does_not_change_the_training(memslidar_data, tmp_path):
     """Iterating the validation loader draws a base seed from torch's global RNG; without a fork of it, the epochs
     after a validation would see other augmentations, and a sweep (validated at the end) would not give the

@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 WORKER = Path(__file__).with_name("ddp_worker.py")
@@ -17,6 +18,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_two_process_gloo_training_keeps_ranks_identical(tmp_path, small_model_cfg, small_optim_cfg, small_range,
                                                           person_voxel):
     setup = tmp_path / "setup.json"

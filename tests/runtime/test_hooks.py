@@ -70,6 +70,7 @@ def test_a_bad_hook_block_is_refused_in_one_line(hook, message):
     assert str(error.value) == message
 
 
+@pytest.mark.slow
 def test_training_with_the_hook_drops_gt_sampling_for_the_last_epoch(memslidar_data, tmp_path, caplog):
     config = tmp_path / "m3_hook.yaml"
     config.write_text(yaml.safe_dump({"_BASE_CONFIG_": str(CFGS / "m3.yaml"), "HOOK": {"DisableAugmentationHook": {

@@ -128,6 +128,7 @@ def test_our_checkpoint_has_openpcdet_structure_and_its_resume_accepts_it(refere
             assert adam.state[param]["exp_avg"].shape == param.shape
 
 
+@pytest.mark.slow
 def test_a_centerpoint_checkpoint_round_trips_and_a_second_one_is_refused_by_it(tmp_path):
     center_cfg = load_config(REPO / "cfgs" / "centerpoint" / "m3.yaml", ["PROFILE", "smoke"])
     dataset = _dataset(center_cfg)

@@ -61,6 +61,7 @@ def tensorboard_scalars(folder) -> dict[str, dict[int, float]]:
     return scalars
 
 
+@pytest.mark.slow
 def test_train_then_test_then_resume(experiment, capsys):
     cfg_file, output = experiment
     common = ["--cfg", str(cfg_file), "--output_dir", str(output), "--workers", "0", "--extra_tag", "run"]

@@ -175,6 +175,7 @@ def test_culled_casting_finds_exactly_the_hits_of_a_brute_force_cast(mount, plac
     assert np.allclose(hits.range[static], t_hit[static], atol=1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lod", LODS)
 def test_candidate_cylinder_holds_every_vertex_of_every_pose(lod):
     """The rays cast against a person come from a cylinder of the body's reach around its path, up to its height:

@@ -117,6 +117,7 @@ people: {{count: [2, 3]}}
     return load_site(path)
 
 
+@pytest.mark.slow
 def test_a_composited_frame_of_the_bundled_recording_keeps_the_rest_of_its_real_frame(tmp_path):
     site = background_site(tmp_path)
     frame = composite_frame(site, seed=4, index=5)
@@ -137,6 +138,7 @@ def test_the_same_seed_gives_the_same_bytes(tmp_path):
     assert first.points.tobytes() != other.points.tobytes()
 
 
+@pytest.mark.slow
 def test_people_stay_clear_of_what_the_background_shows_standing_on_the_floor(tmp_path):
     site = background_site(tmp_path, frames="[0, 10]")
     cells = obstacle_cells(read_background(site.background, site.pattern), MOUNT)
@@ -149,6 +151,7 @@ def test_people_stay_clear_of_what_the_background_shows_standing_on_the_floor(tm
                         & (y < cells[:, 3] + clearance)).any()
 
 
+@pytest.mark.slow
 def test_a_folder_of_point_clouds_keeps_every_return_along_its_own_direction(tmp_path):
     recording = read_bfpc(RECORDING)
     folder = tmp_path / "frames"
@@ -164,6 +167,7 @@ def test_a_folder_of_point_clouds_keeps_every_return_along_its_own_direction(tmp
         assert np.all(np.diff(frame.time_offset) >= 0)
 
 
+@pytest.mark.slow
 def test_mount_estimate_takes_the_recordings_floor(tmp_path):
     path = tmp_path / "estimated.yaml"
     path.write_text(f"""\

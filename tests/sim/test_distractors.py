@@ -62,6 +62,7 @@ def test_every_kind_stands_inside_its_footprint_up_to_its_height(kind):
     assert on_distractor(vertices, distractor, 1e-9).all() and vertices[:, 2].max() == pytest.approx(dz)
 
 
+@pytest.mark.slow
 def test_sampling_keeps_distractors_on_the_walkable_floor_in_view_and_clear_of_obstacles_and_each_other(room):
     site, world = room
     polygon, obstacles, kinds = np.array(site.walkable), world.scene.obstacles, set()

@@ -6,6 +6,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 SIMULATE = [sys.executable, "-m", "pcdet_memslidar.cli", "simulate", "--domain", "real", "--frames", "200"]
 
 
@@ -38,6 +40,7 @@ def _wait_for(condition, timeout_s: float) -> bool:
     return condition()
 
 
+@pytest.mark.slow
 def test_workers_end_when_simulate_is_killed(tmp_path):
     parent = subprocess.Popen(SIMULATE + ["--workers", "2", "--out", str(tmp_path / "real")],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -55,6 +58,7 @@ def test_workers_end_when_simulate_is_killed(tmp_path):
             os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_ctrl_c_prints_one_line_naming_the_way_to_resume(tmp_path):
     # a shell that starts this run in the background makes it ignore SIGINT, and children inherit that: restore it
     process = subprocess.Popen(SIMULATE + ["--workers", "1", "--out", str(tmp_path / "real")],

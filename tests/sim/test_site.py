@@ -126,6 +126,7 @@ def test_bad_site_files_are_refused_naming_file_line_key_and_fix(tmp_path, text,
     assert str(error.value).startswith(f"{path}:{line}: ") and message in str(error.value)
 
 
+@pytest.mark.slow
 def test_a_background_of_another_scan_pattern_is_refused_naming_the_fix(tmp_path):
     path = write(tmp_path, f"""\
 name: room

@@ -12,6 +12,7 @@ def _files(root):
     return {p.relative_to(root): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_same_seed_gives_byte_identical_files_whatever_workers_and_shards(tmp_path):
     preset = get_domain("real")
     simulate_dataset(preset, 4, tmp_path / "a", seed=7, workers=2, progress=False)

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 
 
@@ -15,6 +17,7 @@ def load_tool():
     return tool
 
 
+@pytest.mark.slow
 def test_the_avx2_setting_holds_torch_to_avx2_whatever_the_cpu():
     env = {**os.environ, **load_tool().SETTINGS["avx2"]}
     capability = subprocess.run([sys.executable, "-c", "import torch; print(torch.backends.cpu.get_cpu_capability())"],

@@ -5,10 +5,13 @@ import json
 import tempfile
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parents[2]
 TOOL = REPO / "tools" / "benchmark_model.py"
 
 
+@pytest.mark.slow
 def test_both_heads_with_the_phases_of_a_training_step(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)  # no data folder here: synthetic frames over each config's range
     spec = importlib.util.spec_from_file_location("benchmark_model", TOOL)
@@ -30,6 +33,7 @@ def test_both_heads_with_the_phases_of_a_training_step(tmp_path, monkeypatch, ca
     assert "training step ms per phase" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_epochs_of_the_training_loop_in_fp32_and_mixed_precision_leave_no_checkpoint(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     scratch = tmp_path / "scratch"

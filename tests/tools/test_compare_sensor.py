@@ -1,6 +1,8 @@
 """tools/research/compare_sensor.py: the calibrated preset next to the real recording, as a table and a figure."""
+import pytest
 
 
+@pytest.mark.slow
 def test_table_and_figure(tmp_path, real_recording, capsys, load_tool):
     tool = load_tool("research/compare_sensor.py")
     assert tool.main([str(real_recording), "--frames", "8", "--out", str(tmp_path / "fig.png")]) == 0

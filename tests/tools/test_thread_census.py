@@ -6,6 +6,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import pytest
 import torch
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,6 +47,7 @@ def test_an_op_that_depends_on_the_threads_differs_an_elementwise_op_does_not_an
     assert used.tolist() == [2.0] * 4  # the result of the caller's two threads, not of the one-thread repeat
 
 
+@pytest.mark.slow
 def test_a_training_step_on_one_thread_against_one_differs_nowhere(monkeypatch, capsys):
     """The same thread count gives the same bits (random ops are skipped): 0 differ and no table rows."""
     tool = load_tool(monkeypatch)
