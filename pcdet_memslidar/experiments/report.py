@@ -266,6 +266,13 @@ def machine_line(environment: dict) -> str:
             f"{machine['gpu'] or 'none'}")
 
 
+def wall_time(results: dict) -> str:
+    """'24.8 min, 1-min load average 1.1 at the end': a run's wall time and how busy the machine was."""
+    load = results["environment"]["machine"].get("load_average_1min")
+    return f"{results['wall_seconds'] / 60:.1f} min" + ("" if load is None else
+                                                         f", 1-min load average {load:.1f} at the end")
+
+
 def run_header(results: dict) -> str:
     """The one line that says where a table's numbers come from: date, machine, commit, command."""
     commit = results["environment"].get("commit") or "unknown"

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pcdet_memslidar.experiments.report import run_header
+from pcdet_memslidar.experiments.report import run_header, wall_time
 
 NAMES = {"background": "background subtraction (classical)", "second": "SECOND",
          "second_background": "SECOND + background_depth"}
@@ -51,7 +51,7 @@ def sites_table(runs: list[dict]) -> list[str]:
     rows, sources = [], []
     for results in runs:
         alarms = results["false_alarms"]
-        sources.append(f"- {results['site']}: {run_header(results)}; {results['wall_seconds'] / 60:.1f} min")
+        sources.append(f"- {results['site']}: {run_header(results)}; {wall_time(results)}")
         for detector, scores in results["scores"].items():
             rows.append([results["site"], NAMES.get(detector, detector),
                          *(_ap(scores[name]) for name in ("test", "pairs", "test_distractors")),

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import torch
 
-from pcdet_memslidar.experiments.report import run_header
+from pcdet_memslidar.experiments.report import run_header, wall_time
 from pcdet_memslidar.experiments.results import VECTOR_EXTENSIONS, environment
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -23,3 +23,8 @@ def test_the_run_header_reads_results_from_before_the_commit_was_recorded():
     results = {"date": "2026-11-28", "command": "memslidar reproduce",
                "environment": {"machine": {"cpu": "Old CPU", "cores": 2, "gpu": None}}}
     assert run_header(results) == "2026-11-28; Old CPU, 2 cores, GPU: none; commit unknown; `memslidar reproduce`"
+
+
+def test_the_wall_time_says_how_busy_the_machine_was():
+    results = {"wall_seconds": 1488.0, "environment": {"machine": {"load_average_1min": 3.4970703125}}}
+    assert wall_time(results) == "24.8 min, 1-min load average 3.5 at the end"
