@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import re
-import shutil
 from pathlib import Path
 
 from pcdet_memslidar.errors import ConfigError, DataFormatError
@@ -29,7 +28,7 @@ from pcdet_memslidar.experiments.report import (
     wall_time,
 )
 from pcdet_memslidar.experiments.site_report import side_by_side, sites_table
-from pcdet_memslidar.utils.atomic import write_text
+from pcdet_memslidar.utils.atomic import write_bytes, write_text
 
 STORE = Path("docs") / "results"  # the stored results.json files, relative to the repository root
 FIGURES = Path("docs") / "figures"
@@ -66,7 +65,7 @@ def store_run(run_dir: Path, root: Path) -> Path:
     if figure.is_file():
         name_of = f"table3_{name}_ap_intervals.png" if kind == "reproduce" else f"site_{name}_detections.png"
         (root / FIGURES).mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(figure, root / FIGURES / name_of)
+        write_bytes(root / FIGURES / name_of, figure.read_bytes())
     return target
 
 
