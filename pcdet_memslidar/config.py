@@ -76,6 +76,7 @@ OPTIONAL_KEYS = (
     "DATA_CONFIG.BACKGROUND_MODEL",  # a site's background.npz, for the background_depth feature (geometry.background)
     "DATA_CONFIG.FOREGROUND_ONLY",  # the network sees only the returns in front of the background (datasets.dataset)
     "MODEL.BACKGROUND_SUBTRACTION",  # settings of MODEL.NAME BackgroundSubtraction (models.background_subtraction)
+    "OPTIMIZATION.EMA_DECAY",  # an average of the weights over the steps (runtime.weight_average)
 )
 
 

@@ -171,7 +171,7 @@ def time_epochs(cfg, dataset, epochs: int, use_amp: bool, device) -> dict:
         torch.cuda.reset_peak_memory_stats(device)
     with tempfile.TemporaryDirectory(prefix="benchmark_epochs_") as ckpt_dir:
         set_random_seed(0)
-        model, optimizer, scheduler, it, start = prepare_training(cfg, dataset, Path(ckpt_dir), device, len(loader),
+        model, optimizer, scheduler, it, start, _ = prepare_training(cfg, dataset, Path(ckpt_dir), device, len(loader),
                                                                   epochs, logger)
         train_model(model, optimizer, loader, scheduler, cfg.OPTIMIZATION, start, epochs, it, 0, None, ckpt_dir,
                     device, use_tqdm_to_record=True, logger=logger, logger_iter_interval=100, use_amp=use_amp,

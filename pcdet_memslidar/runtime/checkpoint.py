@@ -4,7 +4,8 @@
 Written with CPU tensors and plain Python values; the model state has OpenPCDet's keys and the optimizer state its
 parameter groups (optimization.build_optimizer), so checkpoints move both ways. The record says what the weights
 were trained on and lets damage be found: {'profile': str | None, 'point_cloud_range': [6] m, 'voxel_size': [3] m,
-'sha256': {'model_state': hex, 'optimizer_state': hex}} (state_digest at save time).
+'sha256': {'model_state': hex, 'optimizer_state': hex}} (state_digest at save time). A training that averages its
+weights (runtime.weight_average) saves the average as 'model_state' and its trained weights as 'training_state'.
 Read with torch.load(weights_only=True), allowing only the numpy scalar types that OpenPCDet's one-cycle optimizer
 state holds. Refused, with the reason: a damaged file (digest), NaN or infinite weights, and (strict loads) a model
 on another voxel grid; OpenPCDet's own checkpoints carry no record and get the checks that remain.
@@ -94,13 +95,16 @@ def trained_on(model: torch.nn.Module) -> dict:
             "voxel_size": [round(float(v), 6) for v in dataset.voxel_size]}
 
 
-def checkpoint_state(model=None, optimizer=None, epoch: int | None = None, it: int | None = None) -> dict:
-    """OpenPCDet's checkpoint dict with CPU tensors and plain Python scalars, plus the 'memslidar' record."""
-    model_state = None if model is None else _plain(unwrap(model).state_dict())
+def checkpoint_state(model=None, optimizer=None, epoch: int | None = None, it: int | None = None,
+                     average=None) -> dict:
+    """OpenPCDet's checkpoint dict with CPU tensors and plain Python scalars, plus the 'memslidar' record. With
+    `average` (runtime.weight_average) its state is the 'model_state' and the model's own the 'training_state'."""
+    own = None if model is None else _plain(unwrap(model).state_dict())
+    model_state = own if average is None else _plain(average.state)
     optimizer_state = None if optimizer is None else _plain(optimizer.state_dict())
     record = {} if model is None else trained_on(model)
     record["sha256"] = {"model_state": state_digest(model_state), "optimizer_state": state_digest(optimizer_state)}
-    return {
+    state = {
         "epoch": None if epoch is None else int(epoch),
         "it": None if it is None else int(it),
         "model_state": model_state,
@@ -108,6 +112,10 @@ def checkpoint_state(model=None, optimizer=None, epoch: int | None = None, it: i
         "version": f"pcdet_memslidar+{__version__}",
         "memslidar": record,
     }
+    if average is not None:
+        state["training_state"] = own
+        record["sha256"]["training_state"] = state_digest(own)
+    return state
 
 
 def save_checkpoint(state: dict, filename: str | Path) -> Path:
@@ -257,10 +265,13 @@ def load_params_from_file(model: torch.nn.Module, filename: str | Path, logger: 
 
 def load_params_with_optimizer(model: torch.nn.Module, filename: str | Path, optimizer=None,
                                logger: logging.Logger | None = None) -> tuple[int, int]:
-    """Resume: model (strict), then the optimizer's moments when its parameter groups fit; the optimizer keeps
-    the config's settings (weight decay, ...; lr and momentum come from the schedule). Returns (it, epoch)."""
+    """Resume: model (strict; its 'training_state' when it has one), then the optimizer's moments when its
+    parameter groups fit; the optimizer keeps the config's settings (weight decay, ...; lr and momentum come from
+    the schedule). Returns (it, epoch)."""
     logger = logger or logging.getLogger(__name__)
     checkpoint = load_params_from_file(model, filename, logger, strict=True)
+    if checkpoint.get("training_state") is not None:  # the average was the model_state: train on from the weights
+        unwrap(model).load_state_dict(checkpoint["training_state"])
     if optimizer is not None and checkpoint.get("optimizer_state") is not None:
         configured = [{k: v for k, v in group.items() if k != "params"} for group in optimizer.param_groups]
         try:

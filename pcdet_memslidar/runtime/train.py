@@ -6,6 +6,7 @@
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from pathlib import Path
@@ -74,7 +75,7 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     if process.rank == 0:
         ckpt_dir.mkdir(parents=True, exist_ok=True)
     iters_per_epoch = len(train_loader) // max(epochs, 1) if merge_all_iters_to_one_epoch else len(train_loader)
-    model, optimizer, lr_scheduler, it, start_epoch = prepare_training(
+    model, optimizer, lr_scheduler, it, start_epoch, average = prepare_training(
         cfg, train_set, ckpt_dir, process.device, iters_per_epoch, epochs, logger, resume_from=resume_from,
         pretrained_model=pretrained_model, sync_bn=sync_bn and process.dist and process.device.type == "cuda")
     model.set_policy(process.policy)
@@ -89,7 +90,9 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
         result = None
         if val_interval > 0 and epoch % val_interval == 0:
             # the loader's base seed comes from torch's RNG: fork it, so validating leaves the training unchanged
-            with torch.random.fork_rng(devices=[process.device] if process.device.type == "cuda" else []):
+            rng = torch.random.fork_rng(devices=[process.device] if process.device.type == "cuda" else [])
+            weights = average.applied(model) if average is not None else contextlib.nullcontext()
+            with rng, weights:  # the weights a checkpoint holds as model_state (the average, when there is one)
                 result = eval_one_epoch(val_cfg, model, val_loader, epoch, logger, process.device,
                                         dist_test=process.dist)
         if on_epoch is not None:
@@ -103,7 +106,7 @@ def train(cfg, run_dir: Path, logger, process: Process | None = None, seed: int 
     train_model(model, optimizer, train_loader, lr_scheduler, cfg.OPTIMIZATION, start_epoch, epochs, it,
                 process.rank, tb_log, ckpt_dir, process.device, train_sampler=sampler,
                 merge_all_iters_to_one_epoch=merge_all_iters_to_one_epoch, logger=logger,
-                on_epoch_start=on_epoch_start, on_epoch_end=on_epoch_end, **loop_options)
+                on_epoch_start=on_epoch_start, on_epoch_end=on_epoch_end, average=average, **loop_options)
     if process.dist:
         torch.distributed.barrier()  # rank 0 has written the last checkpoint
     return final

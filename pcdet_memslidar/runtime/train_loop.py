@@ -21,14 +21,16 @@ from pcdet_memslidar.runtime.checkpoint import (
 )
 from pcdet_memslidar.runtime.common import cpu_has_bf16, threads_giving_way
 from pcdet_memslidar.runtime.optimization import build_optimizer, build_scheduler
+from pcdet_memslidar.runtime.weight_average import weight_average
 from pcdet_memslidar.utils.progress import progress_bar
 
 
 def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: int, epochs: int, logger,
                      resume_from=None, pretrained_model=None, sync_bn: bool = False):
     """cfg's detector on `device` in training mode, its optimizer and learning-rate scheduler, resumed from
-    `resume_from` (default: the newest checkpoint in ckpt_dir, if any). Returns (model, optimizer, lr_scheduler,
-    iteration, start_epoch)."""
+    `resume_from` (default: the newest checkpoint in ckpt_dir, if any), and the average of its weights
+    (runtime.weight_average; None without OPTIMIZATION.EMA_DECAY). Returns (model, optimizer, lr_scheduler,
+    iteration, start_epoch, average)."""
     model = build_network(cfg.MODEL, num_class=len(cfg.CLASS_NAMES), dataset=train_set)
     model.profile = cfg.get("PROFILE")  # recorded in its checkpoints (checkpoint.trained_on)
     if sync_bn:
@@ -45,7 +47,8 @@ def prepare_training(cfg, train_set, ckpt_dir: Path, device, iters_per_epoch: in
         logger.info(f"resuming from {resume_from}: epoch {start_epoch}, iteration {it}")
     model.train()
     lr_scheduler = build_scheduler(optimizer, iters_per_epoch, epochs, last_epoch=it - 1, optim_cfg=cfg.OPTIMIZATION)
-    return model, optimizer, lr_scheduler, it, start_epoch
+    average = weight_average(cfg.OPTIMIZATION, model, it, resume_from, logger)
+    return model, optimizer, lr_scheduler, it, start_epoch, average
 
 
 def train_one_step(model, optimizer, lr_scheduler, batch: dict, grad_norm_clip: float, device,
@@ -101,13 +104,15 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                 ckpt_save_interval: int = 1, max_ckpt_save_num: int = 50, merge_all_iters_to_one_epoch: bool = False,
                 logger: logging.Logger | None = None, logger_iter_interval: int = 50,
                 ckpt_save_time_interval: float = 300, use_tqdm_to_record: bool = False,
-                use_amp: bool = False, on_epoch_start=None, on_epoch_end=None) -> int:
+                use_amp: bool = False, on_epoch_start=None, on_epoch_end=None,
+                average=None) -> int:
     """Train from `start_epoch` to `total_epochs`; rank 0 writes checkpoints and logs. Returns the iteration
     count reached. Mixed precision (use_amp or OPTIMIZATION.USE_AMP): fp16 autocast and a gradient scaler on a GPU
     (OpenPCDet's --use_amp); bf16 in the BEV backbone and head on a CPU that has bf16 units. With
     merge_all_iters_to_one_epoch the loader holds all epochs and is cut into equal parts. on_epoch_start(epoch) runs
     on every rank before each epoch's first batch (epoch counts from 0, OpenPCDet's cur_epoch); on_epoch_end(epoch,
-    mean_loss) after each epoch's checkpoint (epoch counts from 1)."""
+    mean_loss) after each epoch's checkpoint (epoch counts from 1). average (runtime.weight_average): updated after
+    every step and saved as the checkpoints' model_state."""
     logger = logger or logging.getLogger(__name__)
     ckpt_save_dir = Path(ckpt_save_dir)
     accumulated_iter = start_iter
@@ -137,6 +142,8 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
             for step in range(iters_per_epoch):
                 loss, tb_dict = train_one_step(model, optimizer, lr_scheduler, next(batches),
                                                optim_cfg.GRAD_NORM_CLIP, device, scaler)
+                if average is not None:
+                    average.update(model)
                 accumulated_iter += 1
                 epoch_loss += loss
                 lr = optimizer.param_groups[0]["lr"]
@@ -154,7 +161,7 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                     logger.info(f"epoch {epoch + 1}/{total_epochs} iter {step + 1}/{iters_per_epoch} "
                                 f"loss {loss:.4f} lr {lr:.3e} {rate:.2f} s/iter")
                 if time.time() - last_save > ckpt_save_time_interval:
-                    save_checkpoint(checkpoint_state(model, optimizer, epoch, accumulated_iter),
+                    save_checkpoint(checkpoint_state(model, optimizer, epoch, accumulated_iter, average),
                                     ckpt_save_dir / "latest_model.pth")
                     last_save = time.time()
         trained_epoch = epoch + 1
@@ -164,7 +171,8 @@ def train_model(model, optimizer, train_loader, lr_scheduler, optim_cfg, start_e
                 existing = list_checkpoints(ckpt_save_dir)
                 for old in existing[:max(0, len(existing) - max_ckpt_save_num + 1)]:
                     old.unlink()
-                save_checkpoint(checkpoint_state(model, optimizer, trained_epoch, accumulated_iter),
+                save_checkpoint(checkpoint_state(model, optimizer, trained_epoch, accumulated_iter,
+                                                 average),
                                 ckpt_save_dir / f"checkpoint_epoch_{trained_epoch}.pth")
         if on_epoch_end is not None:
             on_epoch_end(trained_epoch, epoch_loss / iters_per_epoch)
