@@ -6,9 +6,12 @@ times. Matching is per frame and does not depend on the other frames, so detecti
 on the frames repeated that many times. AP over all distances, counted as evaluate()'s 'all' range: every ground truth
 is a positive, every matched detection a true positive, every other detection a false positive.
 
-Several seeds of one model: each resample applies the same counts to every seed and averages their AP. Two models:
-the same counts for both (they are scored on the same frames), so their difference is paired. An interval is the
-pair of (1 - level) / 2 and (1 + level) / 2 quantiles of the resampled values. AP values are fractions in [0, 1].
+Several seeds of one model: each resample also draws K of the model's K seeds with replacement (seed_counts (K,),
+drawn for each model on its own) and averages their AP, weighted by those counts, on the same frame counts: the
+interval then covers the spread over seeds as well as the draw of test frames (with one seed, the frames only). Two
+models: the same frame counts for both (they are scored on the same frames), so their difference is paired. An
+interval is the pair of (1 - level) / 2 and (1 + level) / 2 quantiles of the resampled values. AP values are
+fractions in [0, 1].
 """
 from __future__ import annotations
 
@@ -55,6 +58,12 @@ def resample_counts(num_frames: int, resamples: int = RESAMPLES, seed: int = SEE
     return rng.multinomial(num_frames, np.full(num_frames, 1.0 / num_frames), size=resamples)
 
 
+def resample_seed_counts(num_seeds: int, resamples: int = RESAMPLES, seed: int = SEED) -> np.ndarray:
+    """(resamples, num_seeds) int: how often each of a model's seeds is drawn in each resample (rows sum to
+    num_seeds; all ones for one seed)."""
+    return resample_counts(num_seeds, resamples, seed)
+
+
 def weighted_ap(matches: FrameMatches, counts: np.ndarray) -> dict[str, float]:
     """{'R40' | 'R11': AP} of the frames taken counts (F,) int times each; NaN when they hold no ground truth."""
     counts = np.asarray(counts, dtype=np.int64)
@@ -65,16 +74,22 @@ def weighted_ap(matches: FrameMatches, counts: np.ndarray) -> dict[str, float]:
     return {positions: interpolated_ap(curve, num_gt, positions) for positions in RECALL_POSITIONS}
 
 
-def bootstrap_ap(runs: list[FrameMatches], counts: np.ndarray) -> dict[str, np.ndarray]:
+def bootstrap_ap(runs: list[FrameMatches], counts: np.ndarray,
+                 seed_counts: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """{'R40' | 'R11': (B,) AP averaged over `runs` (the seeds of one model, one IoU kind)} for each resample row of
-    counts (B, F)."""
+    counts (B, F), each seed weighted by its row of seed_counts (B, K) (None: every seed once)."""
     num_frames(runs)
+    seed_counts = np.ones((len(counts), len(runs))) if seed_counts is None else np.asarray(seed_counts, float)
+    if seed_counts.shape != (len(counts), len(runs)):
+        raise ValueError(f"bootstrap: seed counts of shape {seed_counts.shape} for {len(counts)} resamples of "
+                         f"{len(runs)} seeds")
     aps = {positions: np.empty((len(counts), len(runs))) for positions in RECALL_POSITIONS}
     for resample, row in enumerate(counts):
         for index, run in enumerate(runs):
             for positions, value in weighted_ap(run, row).items():
                 aps[positions][resample, index] = value
-    return {positions: values.mean(axis=1) for positions, values in aps.items()}
+    return {positions: (values * seed_counts).sum(axis=1) / seed_counts.sum(axis=1)
+            for positions, values in aps.items()}
 
 
 def num_frames(runs: list[FrameMatches]) -> int:

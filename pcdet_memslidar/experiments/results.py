@@ -16,10 +16,10 @@ and figures (experiments.report renders report.md from them).
 AP values are fractions in [0, 1] (None where undefined: no ground truth in a distance bin); gains over M1 are in
 percentage points, as the paper's Table 3 ("+17 %" for 0.10 -> 0.27).
 `interval`, `difference_interval` and `intervals` come from add_intervals (absent before it runs): bootstrap
-percentile intervals over the test frames (pcdet_memslidar/evaluation/bootstrap.py) of the seed-mean AP of each
-INTERVAL_METRICS (all distances), and of this model's seed-mean AP minus each other model's, with the same resampled
-frames for both (paired); `intervals` holds the confidence level, the number of resamples, the seed of the
-resampling, the number of test frames and the seconds it took.
+percentile intervals over the test frames and the seeds (pcdet_memslidar/evaluation/bootstrap.py) of the seed-mean
+AP of each INTERVAL_METRICS (all distances), and of this model's seed-mean AP minus each other model's, with the same
+resampled frames for both (paired) and each model's seeds drawn on their own; `intervals` holds the confidence
+level, the number of resamples, the seed of the resampling, the number of test frames and the seconds it took.
 """
 from __future__ import annotations
 
@@ -46,6 +46,7 @@ from pcdet_memslidar.evaluation.bootstrap import (
     frame_matches,
     percentile_interval,
     resample_counts,
+    resample_seed_counts,
 )
 from pcdet_memslidar.evaluation.diagnose import extent_agreement
 from pcdet_memslidar.evaluation.figures import (
@@ -212,7 +213,8 @@ def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int 
                   seed: int = SEED, figure_dir: Path | None = None) -> None:
     """Fill results['intervals'] and every model's 'interval' and 'difference_interval' (module docstring): the
     bootstrap over the test frames of gt_dir, from the prediction folders of results' runs (relative to
-    report_dir), the same resampled frames for every model and seed; draw ap_intervals.png into figure_dir
+    report_dir), the same resampled frames for every model and seed, each model's seeds resampled on their own
+    (bootstrap.resample_seed_counts; seed + 1 + the model's index); draw ap_intervals.png into figure_dir
     (default report_dir) and name it in results['figures']."""
     started = time.perf_counter()
     check_level(level)
@@ -221,11 +223,13 @@ def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int 
     gt_annos = [gt[frame_id] for frame_id in frame_ids]
     counts = resample_counts(len(frame_ids), resamples, seed)
     samples = {}  # {model: {metric: (resamples,) seed-mean AP}}
-    for name, model in results["models"].items():
+    for index, (name, model) in enumerate(results["models"].items()):
         runs = [frame_matches(gt_annos, frame_predictions(Path(report_dir) / run["predictions"], frame_ids))
                 for run in model["runs"]]
+        seed_counts = resample_seed_counts(len(runs), resamples, seed + 1 + index)
         samples[name] = {f"AP{kind}_{positions}": values for kind in ("3D", "BEV")
-                         for positions, values in bootstrap_ap([run[kind] for run in runs], counts).items()}
+                         for positions, values in bootstrap_ap([run[kind] for run in runs], counts,
+                                                               seed_counts).items()}
     for name, model in results["models"].items():
         model["interval"] = {metric: list(percentile_interval(samples[name][metric], level))
                              for metric in INTERVAL_METRICS}

@@ -11,6 +11,7 @@ from pcdet_memslidar.evaluation.bootstrap import (
     frame_matches,
     percentile_interval,
     resample_counts,
+    resample_seed_counts,
     weighted_ap,
 )
 
@@ -101,6 +102,24 @@ def test_identical_models_differ_by_exactly_zero_and_a_perfect_detector_has_ap_o
             assert ap_interval([perfect[kind]], positions, resamples=200) == (1.0, 1.0)
         low, high = ap_interval([matches[kind]], resamples=200)
         assert 0 < low < evaluate(gt, dt)[KEYS[kind, "R40"]] < high < 1
+
+
+def test_seed_draws_widen_the_interval_to_the_spread_of_the_seeds():
+    """Two seeds of one model, one perfect (AP 1 on any frames) and one blind (AP 0): frames alone give exactly 0.5;
+    drawing 2 of the 2 seeds gives 0, 0.5 or 1 with probabilities 1/4, 1/2, 1/4, so the 95 % interval is [0, 1]."""
+    gt = [anno([person(4, 4)]), anno([person(6, 2), person(9, -3)]), anno([person(12, 5)])]
+    perfect = frame_matches(gt, [frame | {"score": np.ones(len(frame["name"]))} for frame in gt])["3D"]
+    blind = frame_matches(gt, [anno([], []) for _ in gt])["3D"]
+    counts = resample_counts(3, resamples=1000)
+    assert set(bootstrap_ap([perfect, blind], counts)["R40"]) == {0.5}
+    seed_counts = resample_seed_counts(2, resamples=1000, seed=1)
+    values = bootstrap_ap([perfect, blind], counts, seed_counts)["R40"]
+    assert set(values) == {0.0, 0.5, 1.0}
+    assert np.array_equal(values, seed_counts[:, 0] / 2)
+    assert percentile_interval(values) == (0.0, 1.0)
+    assert np.array_equal(resample_seed_counts(1, resamples=5), np.ones((5, 1)))  # one seed: the frames only
+    with pytest.raises(ValueError, match="seed counts of shape"):
+        bootstrap_ap([perfect, blind], counts, seed_counts[:, :1])
 
 
 def test_deterministic_for_a_seed():
