@@ -19,6 +19,7 @@ from pathlib import Path
 from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.experiments.report import (
     bin_table,
+    cpu_table,
     final_test_lines,
     interval_note,
     order_statement,
@@ -37,10 +38,18 @@ BLOCK = re.compile(r"^<!-- BEGIN GENERATED (\S+) -->\n(.*?)^<!-- END GENERATED \
 MAIN_PROFILE = "quick"  # the reproduction README shows
 
 
+def machine_key(results: dict) -> str:
+    """The CPU and torch's vector code of a run, as one lower-case word for file names:
+    'intel_r_xeon_r_processor_avx512'."""
+    machine = results["environment"]["machine"]
+    return "_".join(re.findall(r"[a-z0-9]+", f"{machine['cpu']} {machine.get('aten_cpu_capability') or ''}".lower()))
+
+
 def run_kind(results: dict) -> tuple[str, str]:
-    """('reproduce', profile) or ('site', site name) of a results dict."""
+    """('reproduce', '<profile>_<machine_key>') or ('site', site name) of a results dict: a reproduction is stored
+    once per CPU and vector code, a site once."""
     if "models" in results and "test_domain" in results:
-        return "reproduce", results["profile"]
+        return "reproduce", f"{results['profile']}_{machine_key(results)}"
     if "site" in results and "scores" in results:
         return "site", results["site"]
     raise ConfigError("not the results of `memslidar reproduce` or `memslidar site train` (no models or scores)")
@@ -92,22 +101,32 @@ def reproduce_block(results: dict, details: bool = False) -> list[str]:
 
 
 def blocks(runs: dict[str, dict]) -> dict[str, list[str]]:
-    """{block name: its lines} from the stored runs: `table3` (the quick reproduction), `sites` (every site side by
-    side), `results` (docs/results.md's body: every reproduction with its details, every site's full table)."""
+    """{block name: its lines} from the stored runs: `table3` (the newest quick reproduction), `cpus` (every quick
+    reproduction, one row per CPU and vector code), `sites` (every site side by side), `results` (docs/results.md's
+    body: every reproduction with its details, every site's full table)."""
     reproductions = {name: results for name, results in runs.items() if name.startswith("reproduce_")}
     sites = [results for name, results in runs.items() if name.startswith("site_")]
-    main = reproductions.get(f"reproduce_{MAIN_PROFILE}")
+    quick = sorted((item for item in reproductions.items() if item[1]["profile"] == MAIN_PROFILE),
+                   key=lambda item: item[1]["date"])
     missing = ["No stored run yet: `memslidar docs --add OUTPUT_FOLDER` stores one."]
     body = []
     for name, results in reproductions.items():
-        body += [f"## Table 3: {results['profile']} profile, {len(results['seeds'])} seed(s)", "",
+        machine = results["environment"]["machine"]
+        body += [f"## Table 3: {results['profile']} profile, {len(results['seeds'])} seed(s), {machine['cpu']} "
+                 f"(torch vector code {machine.get('aten_cpu_capability') or 'n/a'})", "",
                  *reproduce_block(results, details=True)]
     if sites:
         body += ["## Sites: three detectors from an empty recording", "", *sites_table(sites), ""]
         for results in sites:
             body += [f"### {results['site']}", "", f"Source: {run_header(results)}.", "", *side_by_side(results), ""]
-    return {"table3": reproduce_block(main) if main else missing, "sites": sites_table(sites) if sites else missing,
-            "results": body or missing}
+    table3 = missing
+    if quick:
+        name, main = quick[-1]
+        figure = FIGURES / f"table3_{name.removeprefix('reproduce_')}_ap_intervals.png"
+        table3 = [*reproduce_block(main), "", f"![AP of every model with its 95 % interval beside the paper's]"
+                                              f"({figure.as_posix()})"]
+    return {"table3": table3, "cpus": cpu_table([results for _, results in quick]) if quick else missing,
+            "sites": sites_table(sites) if sites else missing, "results": body or missing}
 
 
 def fill_blocks(text: str, rendered: dict[str, list[str]], page: Path) -> str:

@@ -209,10 +209,18 @@ def interval_note(results: dict) -> str:
     intervals = results.get("intervals")
     if not intervals:
         return ""
-    return (f"Brackets: {100 * intervals['level']:g} % bootstrap percentile interval over the {intervals['frames']} "
-            f"test frames ({intervals['resamples']} resamples of the frames with replacement, seed "
-            f"{intervals['seed']}); the differences to M1 and the oracle resample the same frames for both models "
-            "(paired). They cover which test frames were drawn, not the training seed.")
+    seeds = len(results["seeds"])
+    if seeds == 1:
+        return (f"Brackets: {100 * intervals['level']:g} % bootstrap percentile interval over the "
+                f"{intervals['frames']} test frames ({intervals['resamples']} resamples of the frames with "
+                f"replacement, seed {intervals['seed']}); the differences to M1 and the oracle resample the same "
+                "frames for both models (paired). They cover which test frames were drawn, not the training seed.")
+    return (f"Values: the mean over {seeds} training seeds ± their standard deviation. Brackets: "
+            f"{100 * intervals['level']:g} % bootstrap percentile interval of that mean over the "
+            f"{intervals['frames']} test frames and the {seeds} seeds ({intervals['resamples']} resamples, each "
+            f"drawing frames and each model's seeds with replacement, seed {intervals['seed']}); the differences to "
+            "M1 and the oracle draw the same frames for both models (paired). They cover the test frames and the "
+            "training seeds, not the CPU.")
 
 
 def final_test_lines(results: dict) -> list[str]:
@@ -251,6 +259,28 @@ def orientation_bin_table(results: dict) -> list[str]:
         return "n/a" if mean is None else f"{mean:.1f} ± {std:.1f}" if seeds > 1 else f"{mean:.1f}"
     rows = [[name, *(cell(model, label) for label in labels)] for name, model in models.items()]
     return _table(["Model", *labels], rows)
+
+
+def cpu_table(runs: list[dict], metric: str = HEADLINE) -> list[str]:
+    """Markdown lines: one row per reproduction in `runs` (one profile, on different CPUs or vector code) with each
+    model's seed mean ± std of `metric`, then the spread between the rows (largest minus smallest mean)."""
+    names = list(dict.fromkeys(name for results in runs for name in results["models"]))
+    rows = []
+    for results in runs:
+        machine = results["environment"]["machine"]
+        models, seeds = results["models"], len(results["seeds"])
+        rows.append([machine["cpu"], machine.get("aten_cpu_capability") or "n/a",
+                     results["environment"].get("commit") or "unknown", f"`{results['command']}`", str(seeds),
+                     *(ap_text(models[name]["mean"].get(metric), models[name]["std"].get(metric), seeds)
+                       if name in models else "-" for name in names)])
+    if len(runs) > 1:
+        spread = []
+        for name in names:
+            means = [results["models"][name]["mean"].get(metric) for results in runs if name in results["models"]]
+            means = [value for value in means if value is not None]
+            spread.append(f"{max(means) - min(means):.3f}" if len(means) > 1 else "-")
+        rows.append(["**spread between the rows**", "", "", "", "", *spread])
+    return _table(["CPU", "torch vector code", "commit", "command", "seeds", *names], rows)
 
 
 def machine_line(environment: dict) -> str:

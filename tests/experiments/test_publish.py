@@ -5,7 +5,8 @@ import pytest
 
 from pcdet_memslidar.cli import main as memslidar
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.experiments.publish import STORE, fill_blocks, strip_blocks
+from pcdet_memslidar.experiments.publish import STORE, fill_blocks, run_kind, strip_blocks
+from pcdet_memslidar.experiments.report import cpu_table
 
 PAGE = "# Title\n\nprose before\n<!-- BEGIN GENERATED sites -->\nold table\n<!-- END GENERATED sites -->\nprose after\n"
 
@@ -59,3 +60,26 @@ def test_a_folder_without_results_is_refused_in_one_line_naming_it(tmp_path, cap
     message = capsys.readouterr().err
     assert message.count("\n") == 1 and "empty_run: no results.json here" in message
     assert (tmp_path / "README.md").read_text() == PAGE
+
+
+def reproduction(cpu: str, vector_code: str, means: dict, seeds: int = 3) -> dict:
+    models = {name: {"mean": {"AP3D_R40": mean}, "std": {"AP3D_R40": 0.01}} for name, mean in means.items()}
+    return {"profile": "quick", "test_domain": "industrial", "models": models, "seeds": list(range(seeds)),
+            "command": "memslidar reproduce --profile quick --seeds 3", "date": "2026-11-28T10:00:00+00:00",
+            "environment": {"commit": "abc", "machine": {"cpu": cpu, "aten_cpu_capability": vector_code}}}
+
+
+def test_a_reproduction_is_stored_once_per_cpu_and_vector_code():
+    assert run_kind(reproduction("Intel(R) Xeon(R) Processor", "AVX512", {})) == (
+        "reproduce", "quick_intel_r_xeon_r_processor_avx512")
+    assert run_kind(reproduction("Intel(R) Xeon(R) Processor", "AVX2", {})) == (
+        "reproduce", "quick_intel_r_xeon_r_processor_avx2")
+
+
+def test_the_cpu_table_gives_each_model_s_seed_mean_per_row_and_the_spread_between_rows():
+    lines = cpu_table([reproduction("CPU A", "AVX512", {"M1": 0.60, "M2": 0.31}),
+                       reproduction("CPU A", "AVX2", {"M1": 0.62, "M2": 0.39})])
+    assert lines[0] == "| CPU | torch vector code | commit | command | seeds | M1 | M2 |"
+    assert lines[2].endswith("| 3 | 0.600 ± 0.010 | 0.310 ± 0.010 |") and "| AVX512 |" in lines[2]
+    assert lines[4] == "| **spread between the rows** |  |  |  |  | 0.020 | 0.080 |"
+    assert len(cpu_table([reproduction("CPU A", "AVX512", {"M1": 0.60})])) == 3  # one row: no spread
