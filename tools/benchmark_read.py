@@ -7,14 +7,17 @@ storage) and from KITTI .bin files, measured in one run.
 The frames are made here (seed 0: random points, each with a time offset) as a KITTI layout with
 training/time_offset/ (io.layout.write_frame) and exported as bags (io.rosbag.export_bag: float32 x, y, z,
 intensity and time). A read is what `memslidar detect` and `import` do: list the frames (io.formats.list_frames),
-then load every cloud with its time offsets. Each source is read once before timing (a warm page cache); its time
-is the median over --repeats reads; ratio = that source / the KITTI layout. Prints a Markdown table; JSON to
-output/benchmark/read_benchmark.json.
+then load every cloud with its time offsets. Each source is read once before timing (a warm page cache), then the
+sources are read in turn --repeats times (so that a change in the machine's load touches all of them); a source's
+time is the median of its reads, in wall-clock time and in CPU time of this process (which other processes on a
+busy machine change less), the latter split into listing the frames and loading them; ratio = that source / the
+KITTI layout. Prints a Markdown table and the load average; JSON to output/benchmark/read_benchmark.json.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -46,15 +49,27 @@ def make_sources(root: Path, frames: int, points: int) -> dict[str, tuple[str, P
     return sources
 
 
-def read_ms(fmt: str, src: Path, repeats: int) -> tuple[float, int]:
-    """(median ms per frame over `repeats` reads after one warm-up read, points read per pass)."""
-    per_frame, count = [], 0
-    for _ in range(repeats + 1):
-        start = time.perf_counter()
-        frames = list_frames(fmt, src)
-        count = sum(len(frame.load().points) for frame in frames)
-        per_frame.append((time.perf_counter() - start) * 1000 / len(frames))
-    return statistics.median(per_frame[1:]), count
+def read_ms(fmt: str, src: Path) -> tuple[tuple[float, float, float], int]:
+    """((wall-clock ms, CPU ms listing the frames, CPU ms loading them) per frame of one read of `src`, points
+    read)."""
+    start, cpu = time.perf_counter(), time.process_time()
+    frames = list_frames(fmt, src)
+    listed = time.process_time()
+    count = sum(len(frame.load().points) for frame in frames)
+    ms = [(time.perf_counter() - start), listed - cpu, time.process_time() - listed]
+    return tuple(value * 1000 / len(frames) for value in ms), count
+
+
+def read_all(sources: dict[str, tuple[str, Path]], repeats: int) -> dict[str, tuple[tuple[float, ...], int]]:
+    """{source: ((wall-clock ms, CPU ms listing, CPU ms loading) per frame, each the median over `repeats` reads,
+    points read)}: one warm-up read each, then the sources read in turn `repeats` times."""
+    counts = {name: read_ms(fmt, src)[1] for name, (fmt, src) in sources.items()}
+    times = {name: [] for name in sources}
+    for _ in range(repeats):
+        for name, (fmt, src) in sources.items():
+            times[name].append(read_ms(fmt, src)[0])
+    return {name: (tuple(statistics.median(column) for column in zip(*times[name])), counts[name])
+            for name in sources}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,19 +82,25 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         sources = make_sources(Path(folder), args.frames, args.points)
-        for name, (fmt, src) in sources.items():
-            ms, count = read_ms(fmt, src, args.repeats)
+        for name, ((ms, list_ms, load_ms), count) in read_all(sources, args.repeats).items():
+            fmt, src = sources[name]
             size = sum(path.stat().st_size for path in src.rglob("*") if path.is_file())
-            rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "points": count, "bytes": size})
+            rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "cpu_ms_per_frame": list_ms + load_ms,
+                         "cpu_ms_list": list_ms, "cpu_ms_load": load_ms, "points": count, "bytes": size})
     if len({row["points"] for row in rows}) != 1:
         raise RuntimeError(f"the sources gave different numbers of points: {rows}")
     print(f"\n{args.frames} frames of {args.points} points (float32 x, y, z, intensity, time); median of "
-          f"{args.repeats} reads, page cache warm; ratio = source / KITTI\n")
-    print("| source | ms per frame | ratio | MB on disk |\n|---|---|---|---|")
+          f"{args.repeats} reads in turn, page cache warm; ratio = source / KITTI\n")
+    print("| source | ms per frame | ratio | CPU ms per frame (list + load) | CPU ratio | MB on disk |\n"
+          "|---|---|---|---|---|---|")
     for row in rows:
         print(f"| {row['source']} | {row['ms_per_frame']:.2f} | {row['ms_per_frame'] / rows[0]['ms_per_frame']:.2f}x "
-              f"| {row['bytes'] / 1e6:.1f} |")
-    summary = {"frames": args.frames, "points": args.points, "repeats": args.repeats, "rows": rows}
+              f"| {row['cpu_ms_per_frame']:.2f} ({row['cpu_ms_list']:.2f} + {row['cpu_ms_load']:.2f}) "
+              f"| {row['cpu_ms_per_frame'] / rows[0]['cpu_ms_per_frame']:.2f}x | {row['bytes'] / 1e6:.1f} |")
+    load = os.getloadavg()
+    print(f"\nload average (1, 5, 15 min) at the end: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    summary = {"frames": args.frames, "points": args.points, "repeats": args.repeats, "rows": rows,
+               "loadavg": list(load)}
     write_text(Path(args.output), json.dumps(summary, indent=1))
     return 0
 
