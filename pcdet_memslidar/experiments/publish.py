@@ -103,14 +103,17 @@ def reproduce_block(results: dict, details: bool = False) -> list[str]:
 def blocks(runs: dict[str, dict]) -> dict[str, list[str]]:
     """{block name: its lines} from the stored runs: `table3` (the newest quick reproduction), `cpus` (every quick
     reproduction, one row per CPU and vector code), `sites` (every site side by side), `results` (docs/results.md's
-    body: every reproduction with its details, every site's full table)."""
+    body: each profile's newest reproduction with its details, every site's full table)."""
     reproductions = {name: results for name, results in runs.items() if name.startswith("reproduce_")}
     sites = [results for name, results in runs.items() if name.startswith("site_")]
     quick = sorted((item for item in reproductions.items() if item[1]["profile"] == MAIN_PROFILE),
                    key=lambda item: item[1]["date"])
     missing = ["No stored run yet: `memslidar docs --add OUTPUT_FOLDER` stores one."]
     body = []
-    for name, results in reproductions.items():
+    newest = {}  # per profile its newest reproduction, in full; the others are rows of the CPU table
+    for results in sorted(reproductions.values(), key=lambda results: results["date"]):
+        newest[results["profile"]] = results
+    for results in newest.values():
         machine = results["environment"]["machine"]
         body += [f"## Table 3: {results['profile']} profile, {len(results['seeds'])} seed(s), {machine['cpu']} "
                  f"(torch vector code {machine.get('aten_cpu_capability') or 'n/a'})", "",
