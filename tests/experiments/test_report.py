@@ -195,7 +195,8 @@ def test_add_intervals_from_prediction_folders_and_table3(tmp_path):
     assert set(models["M3"]["interval"]) == {"AP3D_R40", "AP3D_R11", "APBEV_R40", "APBEV_R11"}
     assert models["M3"]["interval"]["AP3D_R40"] == [1.0, 1.0] == models["oracle"]["interval"]["APBEV_R11"]
     assert models["M1"]["interval"]["AP3D_R40"] == [0.0, 1.0]
-    assert models["M2"]["interval"]["AP3D_R40"] == [0.5, 0.5]  # seed mean of the mirror images: 1/2 on any frames
+    # the seed mean of the mirror images is 1/2 on any frames, but a resample may draw one seed twice: 0 to 1
+    assert models["M2"]["interval"]["AP3D_R40"] == [0.0, 1.0]
     assert models["M4"]["difference_interval"]["M1"]["AP3D_R40"] == [0.0, 0.0]  # the same predictions
     assert models["M3"]["difference_interval"]["oracle"]["APBEV_R40"] == [0.0, 0.0]
     assert models["M1"]["difference_interval"]["M3"]["AP3D_R40"] == [-1.0, 0.0]
