@@ -49,19 +49,14 @@ def frame_matches(gt_annos: list[dict], dt_annos: list[dict], iou_threshold_3d: 
 
 
 def resample_counts(num_frames: int, resamples: int = RESAMPLES, seed: int = SEED) -> np.ndarray:
-    """(resamples, num_frames) int: how often each frame is drawn in each resample (every row sums to num_frames)."""
+    """(resamples, num_frames) int: how often each frame (or each of a model's seeds) is drawn in each resample
+    (every row sums to num_frames; all ones for one)."""
     if resamples < 1:
         raise ValueError(f"bootstrap: resamples must be at least 1, got {resamples}")
     if num_frames < 1:
         raise ValueError("bootstrap: no test frames to resample")
     rng = np.random.default_rng(seed)
     return rng.multinomial(num_frames, np.full(num_frames, 1.0 / num_frames), size=resamples)
-
-
-def resample_seed_counts(num_seeds: int, resamples: int = RESAMPLES, seed: int = SEED) -> np.ndarray:
-    """(resamples, num_seeds) int: how often each of a model's seeds is drawn in each resample (rows sum to
-    num_seeds; all ones for one seed)."""
-    return resample_counts(num_seeds, resamples, seed)
 
 
 def weighted_ap(matches: FrameMatches, counts: np.ndarray) -> dict[str, float]:

@@ -46,7 +46,6 @@ from pcdet_memslidar.evaluation.bootstrap import (
     frame_matches,
     percentile_interval,
     resample_counts,
-    resample_seed_counts,
 )
 from pcdet_memslidar.evaluation.diagnose import extent_agreement
 from pcdet_memslidar.evaluation.figures import (
@@ -214,7 +213,7 @@ def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int 
     """Fill results['intervals'] and every model's 'interval' and 'difference_interval' (module docstring): the
     bootstrap over the test frames of gt_dir, from the prediction folders of results' runs (relative to
     report_dir), the same resampled frames for every model and seed, each model's seeds resampled on their own
-    (bootstrap.resample_seed_counts; seed + 1 + the model's index); draw ap_intervals.png into figure_dir
+    (bootstrap.resample_counts over its seeds; seed + 1 + the model's index); draw ap_intervals.png into figure_dir
     (default report_dir) and name it in results['figures']."""
     started = time.perf_counter()
     check_level(level)
@@ -226,7 +225,7 @@ def add_intervals(results: dict, gt_dir: Path, report_dir: Path, resamples: int 
     for index, (name, model) in enumerate(results["models"].items()):
         runs = [frame_matches(gt_annos, frame_predictions(Path(report_dir) / run["predictions"], frame_ids))
                 for run in model["runs"]]
-        seed_counts = resample_seed_counts(len(runs), resamples, seed + 1 + index)
+        seed_counts = resample_counts(len(runs), resamples, seed + 1 + index)
         samples[name] = {f"AP{kind}_{positions}": values for kind in ("3D", "BEV")
                          for positions, values in bootstrap_ap([run[kind] for run in runs], counts,
                                                                seed_counts).items()}

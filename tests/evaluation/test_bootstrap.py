@@ -11,7 +11,6 @@ from pcdet_memslidar.evaluation.bootstrap import (
     frame_matches,
     percentile_interval,
     resample_counts,
-    resample_seed_counts,
     weighted_ap,
 )
 
@@ -112,12 +111,12 @@ def test_seed_draws_widen_the_interval_to_the_spread_of_the_seeds():
     blind = frame_matches(gt, [anno([], []) for _ in gt])["3D"]
     counts = resample_counts(3, resamples=1000)
     assert set(bootstrap_ap([perfect, blind], counts)["R40"]) == {0.5}
-    seed_counts = resample_seed_counts(2, resamples=1000, seed=1)
+    seed_counts = resample_counts(2, resamples=1000, seed=1)
     values = bootstrap_ap([perfect, blind], counts, seed_counts)["R40"]
     assert set(values) == {0.0, 0.5, 1.0}
     assert np.array_equal(values, seed_counts[:, 0] / 2)
     assert percentile_interval(values) == (0.0, 1.0)
-    assert np.array_equal(resample_seed_counts(1, resamples=5), np.ones((5, 1)))  # one seed: the frames only
+    assert np.array_equal(resample_counts(1, resamples=5), np.ones((5, 1)))  # one seed: the frames only
     with pytest.raises(ValueError, match="seed counts of shape"):
         bootstrap_ap([perfect, blind], counts, seed_counts[:, :1])
 
