@@ -68,6 +68,14 @@ def test_shared_options_are_taken_the_same_way(command, required):
         assert args.workers == default_workers() == (min(4, available_cores()) if torch.cuda.is_available() else 0)
 
 
+def test_the_reproduction_trains_three_seeds_unless_told():
+    """Table 3 states seed means by default (a single training's AP moves with its seed and CPU); a sweep's points
+    are single runs unless told."""
+    assert cli.build_parser("reproduce").parse_args(["reproduce"]).seeds == 3
+    assert cli.build_parser("reproduce").parse_args(["reproduce", "--seeds", "1"]).seeds == 1
+    assert cli.build_parser("sweep").parse_args(["sweep", "ratio"]).seeds == 1
+
+
 def _command_parser(name: str) -> argparse.ArgumentParser:
     parser = cli.build_parser(name)
     commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))

@@ -30,7 +30,8 @@ def test_a_non_editable_install_runs_the_smoke_reproduction(tmp_path):
                        for path in (target / "pcdet_memslidar" / "cfgs").rglob("*.yaml")}
     recording = Path("assets") / "blickfeld" / "cube1_sample_2020.bfpc"  # package data: the demo's input
     assert (target / "pcdet_memslidar" / recording).read_bytes() == (REPO / "pcdet_memslidar" / recording).read_bytes()
-    done = subprocess.run([sys.executable, "-m", "pcdet_memslidar.cli", "reproduce", "--profile", "smoke"], cwd=work,
+    done = subprocess.run([sys.executable, "-m", "pcdet_memslidar.cli", "reproduce", "--profile", "smoke",
+                           "--seeds", "1"], cwd=work,
                           env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     results = json.loads((work / "output" / "reproduce" / "smoke" / "results.json").read_text())

@@ -86,10 +86,11 @@ def _time_unit(text: str) -> float:
     return TIME_UNITS[text]
 
 
-def add_experiment_arguments(parser: argparse.ArgumentParser, runs: str) -> None:
-    """The options of commands that train many models (`reproduce`, `sweep`): --seeds, --out, --data-root, --jobs,
-    --workers; `runs` names what --jobs counts."""
-    parser.add_argument("--seeds", type=int, default=1, help="training seeds 0..K-1; the report gives mean and std")
+def add_experiment_arguments(parser: argparse.ArgumentParser, runs: str, seeds: int = 1) -> None:
+    """The options of commands that train many models (`reproduce`, `sweep`): --seeds (default `seeds`), --out,
+    --data-root, --jobs, --workers; `runs` names what --jobs counts."""
+    parser.add_argument("--seeds", type=int, default=seeds,
+                        help="training seeds 0..K-1; the report gives mean and std (default: %(default)s)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default output/<command>/...); "
                                                                "finished models in it are reused")
     parser.add_argument("--data-root", type=Path, default=None,
