@@ -297,10 +297,15 @@ def machine_line(environment: dict) -> str:
 
 
 def wall_time(results: dict) -> str:
-    """'24.8 min, 1-min load average 1.1 at the end': a run's wall time and how busy the machine was."""
+    """'24.8 min, 1-min load average 1.1 at the end': a run's wall time and how busy the machine was, and how many
+    of its trainings were read back from earlier calls (whose time it does not include)."""
     load = results["environment"]["machine"].get("load_average_1min")
-    return f"{results['wall_seconds'] / 60:.1f} min" + ("" if load is None else
-                                                         f", 1-min load average {load:.1f} at the end")
+    runs = [run for entry in results.get("models", {}).values() for run in entry["runs"]]
+    reused = sum(bool(run.get("read_back")) for run in runs)
+    return (f"{results['wall_seconds'] / 60:.1f} min" + ("" if load is None else
+                                                          f", 1-min load average {load:.1f} at the end")
+            + (f" ({reused} of {len(runs)} trainings read back from earlier calls in its --out, their time not "
+               "included)" if reused else ""))
 
 
 def run_header(results: dict) -> str:

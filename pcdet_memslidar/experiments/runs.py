@@ -80,7 +80,8 @@ def train_detector(cfg, run_dir: Path, seed: int, workers: int, logger, progress
 def run_model(job: dict, progress=None) -> dict:
     """Train and test one (model, seed) job {model, seed, cfg, run_dir, gt_dir, out, workers, threads,
     every_epoch (validate after every epoch, else after the last)}; returns
-    its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there. Runs
+    its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there (its
+    entry then says read_back: True). Runs
     in the calling process or in a worker process of `reproduce` (then it logs to run_dir/log.txt only, and
     progress(epoch) reports its epochs). The process runs on job["threads"] torch threads, with their execution
     policy."""
@@ -94,7 +95,7 @@ def run_model(job: dict, progress=None) -> dict:
         run = json.loads((run_dir / RUN_FILE).read_text())
         for entry in run["curve"] if progress is not None else []:
             progress(entry["epoch"])
-        return run
+        return {**run, "read_back": True}  # the report's wall time then says it covers no training of this run
     logger = create_logger(run_dir / "log.txt", name=f"pcdet_memslidar.{job['model']}.{job['seed']}",
                            console=progress is None)
     started = time.perf_counter()

@@ -28,3 +28,11 @@ def test_the_run_header_reads_results_from_before_the_commit_was_recorded():
 def test_the_wall_time_says_how_busy_the_machine_was():
     results = {"wall_seconds": 1488.0, "environment": {"machine": {"load_average_1min": 3.4970703125}}}
     assert wall_time(results) == "24.8 min, 1-min load average 3.5 at the end"
+
+
+def test_the_wall_time_says_which_trainings_it_leaves_out():
+    """A reproduction that read finished models back from its --out did not train them in the time it reports."""
+    runs = {"M1": {"runs": [{"seed": 0, "read_back": True}, {"seed": 1}]}, "M2": {"runs": [{"seed": 0}, {"seed": 1}]}}
+    results = {"wall_seconds": 324.0, "environment": {"machine": {}}, "models": runs}
+    assert wall_time(results) == ("5.4 min (1 of 4 trainings read back from earlier calls in its --out, their time "
+                                  "not included)")
