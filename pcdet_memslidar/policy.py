@@ -23,6 +23,9 @@ from pcdet_memslidar.utils.cores import available_cores, free_threads
 
 SPIN_VARIABLE, WAIT_POLICY_VARIABLE = "GOMP_SPINCOUNT", "OMP_WAIT_POLICY"
 SPIN_COUNT = "10000"  # spins of a waiting OpenMP thread before it sleeps (libgomp's default: 300,000)
+# MKL's GEMM (torch's CPU matmul) on its AVX2 code path splits its sums by the thread count unless told to be strict:
+# then one and two threads gave different bits (tests/models/test_rulebook.py failed with MKL_ENABLE_INSTRUCTIONS=AVX2).
+MKL_REPRODUCIBILITY_VARIABLE, MKL_REPRODUCIBILITY = "MKL_CBWR", "AUTO,STRICT"
 
 
 @dataclass(frozen=True)
@@ -62,7 +65,9 @@ def thread_share(processes: int = 1) -> int:
 
 def apply_process_policy() -> None:
     """Set the OpenMP wait hint in this process's environment, and so in the processes it starts: GOMP_SPINCOUNT
-    10000, unless the user set GOMP_SPINCOUNT or OMP_WAIT_POLICY (which a GOMP_SPINCOUNT would override). Idempotent.
+    10000, unless the user set GOMP_SPINCOUNT or OMP_WAIT_POLICY (which a GOMP_SPINCOUNT would override); and MKL's
+    strict reproducibility (MKL_CBWR AUTO,STRICT: the same bits on any thread count), unless the user set MKL_CBWR.
+    Idempotent.
 
     libgomp, the OpenMP runtime torch and numba share, reads it when it loads (at `import torch`), so the entry
     points call this first (cli.main, the OpenPCDet launcher, tools), and experiments.runs.run_jobs before it spawns
@@ -71,3 +76,4 @@ def apply_process_policy() -> None:
     training step ran 5-6x slower beside three busy processes instead of 2-3x (tools/benchmark_load.py)."""
     if SPIN_VARIABLE not in os.environ and WAIT_POLICY_VARIABLE not in os.environ:
         os.environ[SPIN_VARIABLE] = SPIN_COUNT
+    os.environ.setdefault(MKL_REPRODUCIBILITY_VARIABLE, MKL_REPRODUCIBILITY)

@@ -1,6 +1,6 @@
 """Test-wide fixtures: the bundled assets (checked by sha256), a full disk, tiny generated MEMS-LiDAR domains and the
-SECOND model configs. Torch keeps its default threads (the machine's cores; CI: 2), so thread bugs show up as they
-would for users."""
+SECOND model configs. The process policy is the entry points' (policy.apply_process_policy); torch keeps its default
+threads (the machine's cores; CI: 2), so thread bugs show up as they would for users."""
 from __future__ import annotations
 
 import errno
@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 from easydict import EasyDict
 
-from pcdet_memslidar import cli
+from pcdet_memslidar import cli, policy
 from pcdet_memslidar.io.bfpc import read_bfpc
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
 from pcdet_memslidar.utils import atomic
 
+policy.apply_process_policy()  # as every entry point does, before torch's first MKL call
 REPO = Path(__file__).resolve().parents[1]
 REAL_RECORDING_SHA256 = "f2fafd8bf6d63a6e579a8c510985f12c81feed00e783c2edcc6f54ab13a0f492"  # Blickfeld's dump.bfpc
 

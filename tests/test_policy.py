@@ -19,11 +19,11 @@ from pcdet_memslidar.runtime.checkpoint import checkpoint_state, save_checkpoint
 from pcdet_memslidar.runtime.experiment import Process
 from pcdet_memslidar.runtime.predict import load_detector
 
-OPENMP_VARIABLES = (policy.SPIN_VARIABLE, policy.WAIT_POLICY_VARIABLE)
+OPENMP_VARIABLES = (policy.SPIN_VARIABLE, policy.WAIT_POLICY_VARIABLE, policy.MKL_REPRODUCIBILITY_VARIABLE)
 
 
 def _run(code: str, **environment: str) -> str:
-    """stdout of `code` in a fresh interpreter whose environment has no OpenMP wait settings but `environment`."""
+    """stdout of `code` in a fresh interpreter without OpenMP wait or MKL settings but `environment`."""
     env = {key: value for key, value in os.environ.items() if key not in OPENMP_VARIABLES}
     done = subprocess.run([sys.executable, "-c", code], env={**env, **environment}, capture_output=True, text=True,
                           timeout=120)
@@ -51,6 +51,14 @@ def test_the_process_policy_shortens_libgomps_spin_unless_the_user_set_it(given,
     """A GOMP_SPINCOUNT overrides OMP_WAIT_POLICY in libgomp, so a user's wait policy must keep it unset."""
     code = ("import os\nfrom pcdet_memslidar.policy import apply_process_policy\napply_process_policy()\n"
             "apply_process_policy()\nprint(os.environ.get('GOMP_SPINCOUNT', 'unset'))")
+    assert _run(code, **given) == expected
+
+
+@pytest.mark.parametrize("given, expected", [({}, "AUTO,STRICT"), ({"MKL_CBWR": "COMPATIBLE"}, "COMPATIBLE")])
+def test_the_process_policy_asks_mkl_for_the_same_bits_on_any_thread_count(given, expected):
+    """MKL's AVX2 GEMM gave other bits on two threads than on one (MKL_ENABLE_INSTRUCTIONS=AVX2) unless strict."""
+    code = ("import os\nfrom pcdet_memslidar.policy import apply_process_policy\napply_process_policy()\n"
+            "print(os.environ['MKL_CBWR'])")
     assert _run(code, **given) == expected
 
 
