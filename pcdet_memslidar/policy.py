@@ -23,8 +23,8 @@ from pcdet_memslidar.utils.cores import available_cores, free_threads
 
 SPIN_VARIABLE, WAIT_POLICY_VARIABLE = "GOMP_SPINCOUNT", "OMP_WAIT_POLICY"
 SPIN_COUNT = "10000"  # spins of a waiting OpenMP thread before it sleeps (libgomp's default: 300,000)
-# MKL's GEMM (torch's CPU matmul) on its AVX2 code path splits its sums by the thread count unless told to be strict:
-# then one and two threads gave different bits (tests/models/test_rulebook.py failed with MKL_ENABLE_INSTRUCTIONS=AVX2).
+# MKL's GEMM (torch's CPU matmul) on its AVX2 code path splits its sums by the thread count unless told to be strict,
+# and one and two threads then give different bits (tests/models/test_rulebook.py with MKL_ENABLE_INSTRUCTIONS=AVX2).
 MKL_REPRODUCIBILITY_VARIABLE, MKL_REPRODUCIBILITY = "MKL_CBWR", "AUTO,STRICT"
 
 
