@@ -32,16 +32,18 @@ def measure(setting: str, cfg: list[str], threads: int, frames: int, out: Path) 
     """The first row of benchmark_model.py's JSON results for `setting`, run in a fresh process."""
     result = out / f"{setting}.json"
     command = [sys.executable, str(BENCHMARK), "--cfg", *cfg, "--profiles", "quick", "--threads", str(threads),
-               "--frames", str(frames), "--output", str(result)]
+               "--frames", str(frames), "--op_kinds", "--output", str(result)]
     subprocess.run(command, check=True, env={**os.environ, **SETTINGS[setting]}, stdout=subprocess.DEVNULL)
     return json.loads(result.read_text())["rows"][0]
 
 
 def stage_times(row: dict) -> dict[str, float]:
-    """{stage: ms} of one benchmark row: inference per module, a training step per phase, and both totals."""
+    """{stage: ms} of one benchmark row: inference per module, a training step per phase, both totals, and the
+    step's ms per kind of work where the row has them (benchmark_model.py --op_kinds)."""
     return {**{f"infer: {name}": ms for name, ms in row["infer_ms_per_module"].items()},
             "infer: total": row["infer_ms"], **{f"train: {name}": ms for name, ms in row["train_ms_per_phase"].items()},
-            "train: step": row["train_step_ms"]}
+            "train: step": row["train_step_ms"],
+            **{f"train ops: {kind}": ms for kind, ms in row.get("train_ms_per_op_kind", {}).items()}}
 
 
 def main() -> None:

@@ -6,6 +6,7 @@ into data, to device, forward, backward and optimizer), and a speed-vs-error tab
     python tools/benchmark_model.py --cfg cfgs/m3.yaml cfgs/centerpoint/m3.yaml   # the two heads side by side
     python tools/benchmark_model.py --cfg cfgs/m3.yaml --variants      # + each variant trained with the budget
     python tools/benchmark_model.py --cfg cfgs/m3.yaml --profiles paper --epochs 2   # + seconds per training epoch
+    python tools/benchmark_model.py --cfg cfgs/m3.yaml --profiles quick --op_kinds   # + a step per kind of work
 
 Frames come from the config's data when it exists (generate it first), else from synthetic person frames over
 the config's range (the table says which). Latency is measured first, alone on the machine; then every variant is
@@ -50,6 +51,14 @@ VARIANTS = {
     "BEV width x2": {"width": 2.0},
     "BEV width x1/2": {"width": 0.5},
     "stride-8 head": {"upsample_strides": [1, 2], "head_stride": 8},
+}
+# kind of work in a training step -> name prefixes of torch.profiler's events; an event's own (self) CPU time counts
+OP_KINDS = {
+    "sparse convs: gather and scatter": ("SubMConvFunction", "SparseConvFunction"),  # spconv's or the rulebook's
+    "matrix products (BLAS)": ("aten::mm", "aten::addmm", "aten::bmm"),
+    "dense convs (oneDNN, ATen)": ("aten::convolution", "aten::_convolution", "aten::mkldnn_convolution",
+                                   "aten::_slow_conv2d", "aten::slow_conv"),
+    "batch norm": ("aten::native_batch_norm", "aten::batch_norm"),
 }
 
 
@@ -157,6 +166,18 @@ def time_train_step(model, dataset, cfg, batch_size: int, steps: int, device) ->
     return float(np.median(times)), {name: float(np.median(ms)) for name, ms in phases.items()}
 
 
+def op_kind_times(model, dataset, cfg, batch_size: int, steps: int, device) -> dict[str, float]:
+    """ms per training step of each of OP_KINDS and of all other torch ops ('other ops'), from torch.profiler's self
+    CPU time over time_train_step's steps (its warm-up step included). Python between the ops is not counted."""
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as profiler:
+        time_train_step(model, dataset, cfg, batch_size, steps, device)
+    totals = dict.fromkeys([*OP_KINDS, "other ops"], 0.0)
+    for event in profiler.key_averages():
+        kind = next((name for name, prefixes in OP_KINDS.items() if event.key.startswith(prefixes)), "other ops")
+        totals[kind] += event.self_cpu_time_total / 1000 / (steps + 1)
+    return totals
+
+
 def time_epochs(cfg, dataset, epochs: int, use_amp: bool, device) -> dict:
     """Seconds of each of `epochs` epochs of runtime.train_loop.train_model on `dataset` (the config's batch size,
     default_workers() loader workers, checkpoints into a temporary folder), steps per epoch, and the GPU's peak
@@ -207,6 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--precisions", nargs="+", choices=PRECISIONS, default=[PRECISIONS[0]],
                         help="precisions of the BEV part timed per profile, in inference and training (default: "
                              "%(default)s; bf16 in training: OPTIMIZATION.USE_AMP on a CPU)")
+    parser.add_argument("--op_kinds", action="store_true",
+                        help="also a training step's ms per kind of work (OP_KINDS), from torch's profiler")
     parser.add_argument("--variants", action="store_true",
                         help="also the speed-vs-error table: every variant trained with the --profile's budget")
     parser.add_argument("--profile", default="quick", help="the profile whose recipe the variants change")
@@ -236,6 +259,9 @@ def main(argv: list[str] | None = None) -> int:
         train_frames, _ = frames_for(cfg, training=True, count=args.frames + args.warmup)
         row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(
             model, train_frames, cfg, args.batch_size, max(2, args.frames // 2), device)
+        if args.op_kinds:
+            row["train_ms_per_op_kind"] = op_kind_times(model, train_frames, cfg, args.batch_size,
+                                                        max(2, args.frames // 2), device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 
@@ -285,6 +311,13 @@ def main(argv: list[str] | None = None) -> int:
     for row in trained_rows:
         print(f"| {row['config']}, {row['precision']} | "
               + " | ".join(f"{row['train_ms_per_phase'][p]:.1f}" for p in phases) + " |")
+    kind_rows = [row for row in rows if "train_ms_per_op_kind" in row]
+    if kind_rows:
+        print(f"\ntraining step ms per kind of work (torch's profiler, self CPU time, batch {args.batch_size})\n")
+        print("| config | " + " | ".join(OP_KINDS) + " | other ops |\n|" + "---|" * (len(OP_KINDS) + 2))
+        for row in kind_rows:
+            print(f"| {row['config']}, {row['precision']} | "
+                  + " | ".join(f"{ms:.1f}" for ms in row["train_ms_per_op_kind"].values()) + " |")
     if epoch_rows:
         print("\ntraining epochs (runtime.train_loop.train_model; s per epoch, the first includes warm-up)\n")
         print("| config | mode | frames | steps/epoch | loader workers | s per epoch | peak GPU GiB |\n|" + "---|" * 7)

@@ -30,3 +30,10 @@ def test_stage_times_put_inference_modules_and_training_phases_side_by_side():
            "train_ms_per_phase": {"forward": 12.0, "backward": 18.0}}
     assert load_tool().stage_times(row) == {"infer: vfe": 1.0, "infer: backbone_3d": 9.0, "infer: total": 10.0,
                                             "train: forward": 12.0, "train: backward": 18.0, "train: step": 30.0}
+
+
+def test_stage_times_add_the_kinds_of_work_where_the_row_has_them():
+    row = {"infer_ms": 10.0, "infer_ms_per_module": {}, "train_step_ms": 30.0, "train_ms_per_phase": {},
+           "train_ms_per_op_kind": {"batch norm": 2.5, "other ops": 7.0}}
+    assert load_tool().stage_times(row) == {"infer: total": 10.0, "train: step": 30.0, "train ops: batch norm": 2.5,
+                                            "train ops: other ops": 7.0}

@@ -19,7 +19,7 @@ def test_both_heads_with_the_phases_of_a_training_step(tmp_path, monkeypatch, ca
     spec.loader.exec_module(tool)
     out = tmp_path / "bench.json"
     assert tool.main(["--cfg", str(REPO / "cfgs/m3.yaml"), str(REPO / "cfgs/centerpoint/m3.yaml"), "--profiles",
-                      "smoke", "--frames", "2", "--warmup", "1", "--threads", "1", "--output", str(out),
+                      "smoke", "--frames", "2", "--warmup", "1", "--threads", "1", "--op_kinds", "--output", str(out),
                       "--set", "DATA_CONFIG.DATA_PATH", str(tmp_path / "none")]) == 0
     rows = json.loads(out.read_text())["rows"]
     assert [(row["config"], row["head"], row["head_stride"]) for row in rows] == [
@@ -30,7 +30,12 @@ def test_both_heads_with_the_phases_of_a_training_step(tmp_path, monkeypatch, ca
         assert all(ms > 0 for ms in phases.values()) and row["infer_ms"] > 0
         # the step is the four phases after the data: their sum, to the medians' spread
         assert 0.5 * row["train_step_ms"] < sum(phases.values()) - phases["data"] < 2 * row["train_step_ms"]
-    assert "training step ms per phase" in capsys.readouterr().out
+        kinds = row["train_ms_per_op_kind"]
+        assert list(kinds) == [*tool.OP_KINDS, "other ops"]
+        assert all(kinds[kind] > 0 for kind in ("sparse convs: gather and scatter", "matrix products (BLAS)",
+                                                "dense convs (oneDNN, ATen)", "batch norm"))
+    printed = capsys.readouterr().out
+    assert "training step ms per phase" in printed and "training step ms per kind of work" in printed
 
 
 @pytest.mark.slow
