@@ -257,11 +257,11 @@ def main(argv: list[str] | None = None) -> int:
         row["infer_ms"], row["infer_ms_per_module"] = time_inference(model, dataset, args.frames, args.warmup, device)
         model.set_precision(precision, training=True)  # the BEV part's precision in training too (USE_AMP)
         train_frames, _ = frames_for(cfg, training=True, count=args.frames + args.warmup)
-        row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(
-            model, train_frames, cfg, args.batch_size, max(2, args.frames // 2), device)
+        steps = max(2, args.frames // 2)
+        row["train_step_ms"], row["train_ms_per_phase"] = time_train_step(model, train_frames, cfg, args.batch_size,
+                                                                          steps, device)
         if args.op_kinds:
-            row["train_ms_per_op_kind"] = op_kind_times(model, train_frames, cfg, args.batch_size,
-                                                        max(2, args.frames // 2), device)
+            row["train_ms_per_op_kind"] = op_kind_times(model, train_frames, cfg, args.batch_size, steps, device)
         rows.append(row)
         logging.getLogger(__name__).info(json.dumps(row))
 

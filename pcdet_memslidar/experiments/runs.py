@@ -81,10 +81,9 @@ def run_model(job: dict, progress=None) -> dict:
     """Train and test one (model, seed) job {model, seed, cfg, run_dir, gt_dir, out, workers, threads,
     every_epoch (validate after every epoch, else after the last)}; returns
     its run entry, also kept in run_dir/run.json: a finished run of the same config is read back from there (its
-    entry then says read_back: True). Runs
-    in the calling process or in a worker process of `reproduce` (then it logs to run_dir/log.txt only, and
-    progress(epoch) reports its epochs). The process runs on job["threads"] torch threads, with their execution
-    policy."""
+    entry then says read_back: True). Runs in the calling process or in a worker process of `reproduce` (then it
+    logs to run_dir/log.txt only, and progress(epoch) reports its epochs). The process runs on job["threads"] torch
+    threads, with their execution policy."""
     process = local_process(job["threads"])
     cfg, run_dir = job["cfg"], Path(job["run_dir"])
     run_dir.mkdir(parents=True, exist_ok=True)
