@@ -214,3 +214,29 @@ def test_a_time_unit_is_refused_for_a_cloud_without_times_or_with_a_span_no_fram
     np.save(tmp_path / "t.npy", np.array([[1, 2, 3, 4, 0], [1, 2, 3, 4, 2e10]], np.float64))
     with pytest.raises(DataFormatError, match=r"spans 20 s in unit ns, .*: these are no times within one frame"):
         read_point_cloud(tmp_path / "t.npy", time_unit_s=1e-9)
+
+
+def test_int16_coordinates_at_their_most_negative_are_refused_as_beyond_any_lidar_range(tmp_path):
+    points = np.zeros(3, [("x", "<i2"), ("y", "<i2"), ("z", "<i2")])
+    points[1] = (1, 2, 3)
+    points[2] = (4, -32768, 5)  # abs() of it wraps to itself in int16
+    np.save(tmp_path / "i.npy", points)
+    with pytest.raises(DataFormatError) as error:
+        read_point_cloud(tmp_path / "i.npy")
+    assert str(error.value).startswith(f"{tmp_path / 'i.npy'}: 1 point(s) lie beyond 1000 m, the first is point 2 "
+                                       "(counting from 0) at [4.0, -32768.0, 5.0] m:")
+
+
+def test_columns_of_mixed_types_become_float32_points_with_invalid_ones_dropped_and_counted(tmp_path):
+    points = np.zeros(5, [("x", "<f8"), ("y", "<i4"), ("z", "<f4"), ("reflectivity", "<u2"), ("t", "<u4")])
+    points["x"] = [0.1, np.nan, 0.0, 999.9999999, -1e-46]  # -1e-46 is a nonzero float64 that rounds to -0 in float32
+    points["y"] = [2, 3, 0, -1000, 0]
+    points["z"] = [3.5, 1.0, 0.0, 0.25, 0.0]
+    points["reflectivity"] = [7, 8, 9, 65535, 1]
+    points["t"] = [10, 20, 30, 40, 50]
+    np.save(tmp_path / "m.npy", points)
+    cloud = read_point_cloud(tmp_path / "m.npy")
+    assert cloud.points.dtype == np.float32 and cloud.dropped == 2  # the NaN point and the all-zero point
+    expected = [[np.float32(0.1), 2.0, 3.5, 7.0], [1000.0, -1000.0, 0.25, 65535.0], [-0.0, 0.0, 0.0, 1.0]]
+    assert cloud.points.tolist() == expected and np.signbit(cloud.points[2, 0])  # kept: valid in the file's float64
+    assert cloud.time.dtype == np.float64 and cloud.time.tolist() == [10.0, 40.0, 50.0] and cloud.has_intensity
