@@ -20,7 +20,13 @@ from pcdet_memslidar.config import cfg as global_cfg
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.evaluation.figures import plot_ground_check
 from pcdet_memslidar.experiments.results import HEADLINE
-from pcdet_memslidar.experiments.site_detector import SITE_DETECTORS, SitePlan, site_extent, train_site
+from pcdet_memslidar.experiments.site_detector import (
+    DEFAULT_DETECTORS,
+    SITE_DETECTORS,
+    SitePlan,
+    site_extent,
+    train_site,
+)
 from pcdet_memslidar.experiments.site_report import NAMES
 from pcdet_memslidar.sim.composite import estimate_background_mount, recording_points
 from pcdet_memslidar.sim.site import load_site
@@ -49,9 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--compare", type=Path, default=None,
                         help="a `memslidar reproduce` output folder: its seed-0 models' false alarms on the same "
                              "empty frames go into the report")
-    parser.add_argument("--detectors", nargs="+", default=list(SITE_DETECTORS), choices=SITE_DETECTORS,
-                        help="which detectors to build and compare (default: all): background subtraction, SECOND, "
-                             "SECOND with each point's background_depth")
+    parser.add_argument("--detectors", nargs="+", default=list(DEFAULT_DETECTORS), choices=SITE_DETECTORS,
+                        help="which detectors to build and compare: background subtraction, SECOND, SECOND with each "
+                             "point's background_depth (default: the first two)")
     add_set(parser)
 
 
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
                         *([f"--sim-share {args.sim_share} --sim-site {args.sim_site}"] if args.sim_share else []),
                         *([f"--compare {args.compare}"] if args.compare else []),
                         *([f"--detectors {' '.join(args.detectors)}"]
-                          if args.detectors != list(SITE_DETECTORS) else []),
+                          if args.detectors != list(DEFAULT_DETECTORS) else []),
                         *(["--set", *args.set_cfgs] if args.set_cfgs else [])])
     results = train_site(args.site, out.resolve(), SitePlan(args.frames, args.test_frames, args.holdout, args.seed,
                                                             args.sim_share, args.sim_site),

@@ -12,7 +12,7 @@ import numpy as np
 from pcdet_memslidar.datasets.memslidar_dataset import MEMSLidarDataset
 from pcdet_memslidar.datasets.processor.data_processor import mask_points_by_range
 from pcdet_memslidar.evaluation.metrics import evaluate
-from pcdet_memslidar.models.background_subtraction import SETTINGS, detect_people
+from pcdet_memslidar.models.background_subtraction import SETTINGS, clusters, detect_people
 from pcdet_memslidar.models.post_processing import box_from_points
 from pcdet_memslidar.utils.progress import progress_bar
 
@@ -29,22 +29,27 @@ def choose_settings(cfg, logger) -> tuple[dict, list[dict]]:
     data_cfg.DATA_SPLIT = {"train": "train", "test": "val"}
     dataset = MEMSLidarDataset(data_cfg, cfg.CLASS_NAMES, training=False, logger=logger)
     count = min(len(dataset), MAX_FRAMES)
-    frames = [dataset.get_frame(index) for index in range(count)]
     column = dataset.point_feature_encoder.src_feature_list.index("background_depth")
     limits = np.asarray(cfg.DATA_CONFIG.POINT_CLOUD_RANGE)
+    frames = []  # (points (N, 3+) float64, background_depth (N,), times (N,) or None) inside the grid
+    for index in range(count):
+        frame = dataset.get_frame(index)
+        inside = mask_points_by_range(frame["points"], limits)
+        times = frame.get("point_times")
+        frames.append((frame["points"][inside].astype(np.float64), frame["points"][inside, column],
+                       None if times is None else times[inside]))
     box_step = box_from_points(cfg.MODEL.POST_PROCESSING)
     gt_annos = dataset.gt_annos()[:count]
-    trials = []
+    trials, labels = [], {}  # labels: (frame, radius) -> its foreground points' clusters, shared by the trials
     combinations = list(itertools.product(*GRID.values()))
     for values in progress_bar(combinations, desc="classical detector settings", unit="trial"):
         settings = {**SETTINGS, **dict(zip(GRID, values))}
         dt_annos = []
-        for frame in frames:
-            inside = mask_points_by_range(frame["points"], limits)
-            points = frame["points"][inside]
-            times = frame.get("point_times")
-            boxes, scores = detect_people(points.astype(np.float64), points[:, column], settings, box_step,
-                                          None if times is None else times[inside])
+        for index, (points, depth, times) in enumerate(frames):
+            key = (index, settings["CLUSTER_RADIUS"])
+            if key not in labels:
+                labels[key] = clusters(points[depth > 0, :2], settings["CLUSTER_RADIUS"])
+            boxes, scores = detect_people(points, depth, settings, box_step, times, labels[key])
             dt_annos.append({"name": np.full(len(boxes), cfg.CLASS_NAMES[0]), "score": scores, "boxes_lidar": boxes})
         with warnings.catch_warnings():  # a distance bin without people: its AP is NaN, the one used is not
             warnings.filterwarnings("ignore", message="no ground-truth")

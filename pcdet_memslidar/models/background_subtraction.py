@@ -55,12 +55,13 @@ def clusters(xy: np.ndarray, radius: float) -> np.ndarray:
     return connected_components(graph, directed=False)[1]
 
 
-def person_clusters(points: np.ndarray, settings: dict) -> tuple[np.ndarray, np.ndarray]:
+def person_clusters(points: np.ndarray, settings: dict, label: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Foreground points (N, 3+) [m] -> (boxes (K, 7) before the box step, scores (K,)) of the clusters that pass
-    the person-size filter (module docstring)."""
+    the person-size filter (module docstring); label: the points' clusters at CLUSTER_RADIUS where known."""
     boxes, scores = [], []
     if len(points):
-        label = clusters(points[:, :2], settings["CLUSTER_RADIUS"])
+        label = clusters(points[:, :2], settings["CLUSTER_RADIUS"]) if label is None else label
         for index in np.flatnonzero(np.bincount(label) >= settings["MIN_POINTS"]):
             own = points[label == index, :3]
             top, extent = own[:, 2].max(), np.ptp(own[:, :2], axis=0)
@@ -74,12 +75,13 @@ def person_clusters(points: np.ndarray, settings: dict) -> tuple[np.ndarray, np.
 
 
 def detect_people(points: np.ndarray, depth: np.ndarray, settings: dict, box_step: tuple | None,
-                  times: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  times: np.ndarray | None = None, label: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """One frame: points (N, 3+) [m] and their background_depth (N,) [m] (and time offsets (N,) [s] or None) ->
     (boxes (K, 7), scores (K,)); box_step: post_processing.box_from_points' settings (None: boxes as clustered),
-    applied to the foreground points only (the background around a person is known, unlike after a network)."""
+    applied to the foreground points only (the background around a person is known, unlike after a network);
+    label: the foreground points' clusters at CLUSTER_RADIUS where known (None: found here)."""
     foreground = depth > 0
-    boxes, scores = person_clusters(points[foreground], settings)
+    boxes, scores = person_clusters(points[foreground], settings, label)
     if box_step is not None and len(boxes):
         min_points, margin, min_height, center_depth, min_drift_speed = box_step
         boxes, _ = fit_boxes_to_points(boxes, points[foreground], min_points, margin, min_height, center_depth,

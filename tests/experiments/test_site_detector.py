@@ -36,7 +36,7 @@ def test_site_check_draws_the_floor_to_look_at(tmp_path, capsys):
 def trained(tmp_path_factory):
     out = tmp_path_factory.mktemp("site")
     assert main(["site", "train", "--site", str(SITE), "--profile", "smoke", "--frames", "12", "--test-frames", "6",
-                 "--out", str(out)]) == 0
+                 "--detectors", "background", "second", "second_background", "--out", str(out)]) == 0
     return out
 
 
@@ -75,6 +75,7 @@ def test_site_train_writes_a_config_that_fits_the_site_and_a_report(trained):
         assert y0 <= corners[:, 1].min() - 0.4 and y1 >= corners[:, 1].max() + 0.4
         assert x1 - x0 <= np.ptp(corners[:, 0]) + 0.8 + 1.6 and y1 - y0 <= np.ptp(corners[:, 1]) + 0.8 + 1.6
     assert set(results["scores"]) == {"background", "second", "second_background"}
+    assert results["command"].endswith(f"--out {trained} --detectors background second second_background")
     for detector, config in results["configs"].items():
         cfg = load_config(config, profile="smoke")
         assert cfg.DATA_CONFIG.BACKGROUND_MODEL == str(trained / "background.npz")
