@@ -119,7 +119,7 @@ def blocks(runs: dict[str, dict]) -> dict[str, list[str]]:
                  f"(torch vector code {machine.get('aten_cpu_capability') or 'n/a'})", "",
                  *reproduce_block(results, details=True)]
     if sites:
-        body += ["## Sites: three detectors from an empty recording", "", *sites_table(sites), ""]
+        body += ["## Sites: detectors from an empty recording", "", *sites_table(sites), ""]
         for results in sites:
             body += [f"### {results['site']}", "", f"Source: {run_header(results)}.", "", *side_by_side(results), ""]
     table3 = missing
