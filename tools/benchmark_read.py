@@ -11,7 +11,8 @@ then load every cloud with its time offsets. Each source is read once before tim
 sources are read in turn --repeats times (so that a change in the machine's load touches all of them); a source's
 time is the median of its reads, in wall-clock time and in CPU time of this process (which other processes on a
 busy machine change less), the latter split into listing the frames and loading them; ratio = that source / the
-KITTI layout. Prints a Markdown table and the load average; JSON to output/benchmark/read_benchmark.json.
+KITTI layout. One more read per source, traced by Python's tracemalloc, gives the most memory a read holds at once.
+Prints a Markdown table and the load average; JSON to output/benchmark/read_benchmark.json.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import statistics
 import sys
 import tempfile
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +62,17 @@ def read_ms(fmt: str, src: Path) -> tuple[tuple[float, float, float], int]:
     return tuple(value * 1000 / len(frames) for value in ms), count
 
 
+def peak_mb(fmt: str, src: Path) -> float:
+    """The most memory [MB] Python traces at once while reading `src` as read_ms does (listing, then loading)."""
+    tracemalloc.start()
+    try:
+        for frame in list_frames(fmt, src):
+            frame.load()
+        return tracemalloc.get_traced_memory()[1] / 1e6
+    finally:
+        tracemalloc.stop()
+
+
 def read_all(sources: dict[str, tuple[str, Path]], repeats: int) -> dict[str, tuple[tuple[float, ...], int]]:
     """{source: ((wall-clock ms, CPU ms listing, CPU ms loading) per frame, each the median over `repeats` reads,
     points read)}: one warm-up read each, then the sources read in turn `repeats` times."""
@@ -86,17 +99,19 @@ def main(argv: list[str] | None = None) -> int:
             fmt, src = sources[name]
             size = sum(path.stat().st_size for path in src.rglob("*") if path.is_file())
             rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "cpu_ms_per_frame": list_ms + load_ms,
-                         "cpu_ms_list": list_ms, "cpu_ms_load": load_ms, "points": count, "bytes": size})
+                         "cpu_ms_list": list_ms, "cpu_ms_load": load_ms, "points": count, "bytes": size,
+                         "peak_mb": peak_mb(fmt, src)})
     if len({row["points"] for row in rows}) != 1:
         raise RuntimeError(f"the sources gave different numbers of points: {rows}")
     print(f"\n{args.frames} frames of {args.points} points (float32 x, y, z, intensity, time); median of "
           f"{args.repeats} reads in turn, page cache warm; ratio = source / KITTI\n")
-    print("| source | ms per frame | ratio | CPU ms per frame (list + load) | CPU ratio | MB on disk |\n"
-          "|---|---|---|---|---|---|")
+    print("| source | ms per frame | ratio | CPU ms per frame (list + load) | CPU ratio | MB on disk | peak MB held |\n"
+          "|---|---|---|---|---|---|---|")
     for row in rows:
         print(f"| {row['source']} | {row['ms_per_frame']:.2f} | {row['ms_per_frame'] / rows[0]['ms_per_frame']:.2f}x "
               f"| {row['cpu_ms_per_frame']:.2f} ({row['cpu_ms_list']:.2f} + {row['cpu_ms_load']:.2f}) "
-              f"| {row['cpu_ms_per_frame'] / rows[0]['cpu_ms_per_frame']:.2f}x | {row['bytes'] / 1e6:.1f} |")
+              f"| {row['cpu_ms_per_frame'] / rows[0]['cpu_ms_per_frame']:.2f}x | {row['bytes'] / 1e6:.1f} "
+              f"| {row['peak_mb']:.1f} |")
     load = os.getloadavg()
     print(f"\nload average (1, 5, 15 min) at the end: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     summary = {"frames": args.frames, "points": args.points, "repeats": args.repeats, "rows": rows,

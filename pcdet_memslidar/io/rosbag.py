@@ -9,8 +9,9 @@ and unorganised clouds, either byte order and padding inside point_step or at th
 of the time field (io.pointclouds.TIME_FIELDS: `t`, `time`, `timestamp`, `offset_time`, ...) follows its datatype:
 integers are nanoseconds (Ouster's `t`, Livox's `offset_time`), float32 seconds (Velodyne's `time`); float64 is
 seconds for some drivers (Hesai, RoboSense) and nanoseconds for others (Livox), so its times are used only with
---time-unit, which, given, applies to a time field of any datatype. Errors (DataFormatError) name the file, the
-topic and the message index, counting from 0.
+--time-unit, which, given, applies to a time field of any datatype. A bag is read twice, to list its frames (all
+layouts checked) and to load them, so that its length does not matter: it is held in memory one message (MCAP: one
+chunk) at a time. Errors (DataFormatError) name the file, the topic and the message index, counting from 0.
 
 Writing: bag_writer (messages of any type, by topic), cloud_message (points as a PointCloud2) and export_bag
 (frames -> a rosbag2 folder: `memslidar export-bag`).
@@ -20,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import itertools
+import weakref
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -58,40 +60,83 @@ def is_bag(folder: Path) -> bool:
 # ---------------------------------------------------------------- reading
 def read_bag(path: Path, topic: str | None = None, time_unit_s: float | None = None) -> list[SourceFrame]:
     """The frames of the PointCloud2 topic `topic` (None: the bag's only one) of the bag `path`, in the bag's order,
-    named '<bag>#<index>', with their header stamps and frame ids; each cloud is decoded when loaded.
+    named '<bag>#<index>', with their header stamps and frame ids; every message's layout is checked here, and its
+    cloud read again and decoded when loaded (BagMessages), so that a bag of any length fits in memory.
     time_unit_s: seconds per unit of the time field (None: from its datatype, module docstring)."""
-    frames = []
-    with _open(path) as reader:
+    with contextlib.closing(_opened(path)) as reader:
         connections = _topic_connections(reader, path, topic)
-        topic = connections[0].topic
-        for index, raw in _raw_messages(reader, connections, path, topic):
-            where = f"{path}: topic {topic}, message {index}"
-            try:
-                message = typestore().deserialize_cdr(raw, POINTCLOUD2)
-            except Exception as error:  # rosbags' decoder on damaged bytes (SerdeError, struct's, unicode's)
-                raise DataFormatError(where, f"cannot be decoded as a PointCloud2 ({error}): {DAMAGED}") from None
-            dtype = _point_dtype(message, where)
+        messages = BagMessages(path, connections[0].topic)
+        frames = []
+        for index, raw in _raw_messages(reader, connections, path, messages.topic):
+            message, _ = messages.decode(index, raw)
             stamp_ns = message.header.stamp.sec * 10 ** 9 + message.header.stamp.nanosec
-            frames.append(SourceFrame(f"{path.name}#{index}", functools.partial(_cloud, message, dtype, where,
-                                                                                time_unit_s),
+            frames.append(SourceFrame(f"{path.name}#{index}", functools.partial(messages.cloud, index, time_unit_s),
                                       stamp_ns=stamp_ns, frame_id=message.header.frame_id))
     if not frames:
-        raise DataFormatError(path, f"topic {topic} holds no messages: give a bag with at least one point cloud")
+        raise DataFormatError(path, f"topic {messages.topic} holds no messages: give a bag with at least one point "
+                                    "cloud")
     return frames
 
 
-@contextlib.contextmanager
-def _open(path: Path) -> Iterator[Reader]:
+class BagMessages:
+    """The PointCloud2 messages of one topic of a bag by index, read for loading its frames in order by one open
+    reader (a message before the last one read opens the bag again): a bag is read in the memory of one message.
+    Reading a message twice (listing, loading) costs less than keeping a bag's messages (benchmarks.md)."""
+
+    def __init__(self, path: Path, topic: str):
+        self.path, self.topic = path, topic
+        self._reader: list = []  # the open reader and its (index, raw) iterator, if any (closed when collected)
+        self._next = 0  # the index of the message the open reader reads next
+        weakref.finalize(self, _close_readers, self._reader)
+
+    def decode(self, index: int, raw: bytes) -> tuple[object, np.dtype]:
+        """The PointCloud2 of message `index` and its points' record (_point_dtype: the layout checked)."""
+        where = self._where(index)
+        try:
+            message = typestore().deserialize_cdr(raw, POINTCLOUD2)
+        except Exception as error:  # rosbags' decoder on damaged bytes (SerdeError, struct's, unicode's)
+            raise DataFormatError(where, f"cannot be decoded as a PointCloud2 ({error}): {DAMAGED}") from None
+        return message, _point_dtype(message, where)
+
+    def cloud(self, index: int, time_unit_s: float | None) -> LoadedCloud:
+        """The cloud of message `index` (time_unit_s: read_bag's)."""
+        return _cloud(*self.decode(index, self._read(index)), self._where(index), time_unit_s)
+
+    def _read(self, index: int) -> bytes:
+        """The serialised message `index`, read by the open reader (opened again from the start for an earlier
+        message)."""
+        if not self._reader or index < self._next:
+            _close_readers(self._reader)
+            reader = _opened(self.path)
+            self._reader += [reader, _raw_messages(reader, _topic_connections(reader, self.path, self.topic),
+                                                   self.path, self.topic)]
+            self._next = 0
+        for position, raw in self._reader[1]:
+            self._next = position + 1
+            if position == index:
+                return raw
+        _close_readers(self._reader)
+        raise DataFormatError(self._where(index), "is gone: the bag changed after it was listed; read it again")
+
+    def _where(self, index: int) -> str:
+        return f"{self.path}: topic {self.topic}, message {index}"
+
+
+def _close_readers(opened: list) -> None:
+    """Close the reader in `opened` ([reader, messages] or empty) and empty it."""
+    if opened:
+        opened[0].close()
+        opened.clear()
+
+
+def _opened(path: Path) -> Reader:
     """rosbags' reader of the bag `path`, open; DataFormatError naming the file where it cannot be opened."""
     try:
         reader = Reader(path)
         reader.open()
     except Exception as error:  # rosbags' ReaderError, and sqlite's or the MCAP parser's errors on damaged files
         raise DataFormatError(path, f"cannot be opened as a ROS 2 bag ({error}): {DAMAGED}") from None
-    try:
-        yield reader
-    finally:
-        reader.close()
+    return reader
 
 
 def _topic_connections(reader: Reader, path: Path, topic: str | None) -> list:

@@ -1,9 +1,11 @@
 """ROS 2 bags (io.rosbag, registered as the format 'rosbag2'): a bag written by rosbags' own writer with a driver's
 PointCloud2 layout imports with its points and times intact; topics are picked or refused by name; damaged bags
 and layouts are refused in one line naming the file, the topic and the message; `memslidar export-bag` writes a
-KITTI-layout dataset as a bag that reads back the same; a bag is a site's background."""
+KITTI-layout dataset as a bag that reads back the same; a bag is a site's background; a bag is read in memory
+that does not grow with its length, its frames loaded in any order."""
 import re
 import shutil
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from pcdet_memslidar import cli
-from pcdet_memslidar.errors import ConfigError
+from pcdet_memslidar.errors import ConfigError, DataFormatError
 from pcdet_memslidar.io.formats import format_files, get_format, list_frames
 from pcdet_memslidar.io.layout import KittiLayout, read_frame, write_frame
 from pcdet_memslidar.io.rosbag import cloud_message, typestore
@@ -187,6 +189,44 @@ def test_a_float64_time_field_is_used_with_its_unit_only(tmp_path):
     assert list_frames("rosbag2", bag)[0].load().time_offsets() is None
     np.testing.assert_array_equal(list_frames("rosbag2", bag, time_unit_s=1e-9)[0].load().time_offsets(),
                                   np.array([0.0, 51_200 * 1e-9], np.float32))
+
+
+def _peak_bytes(bag: Path) -> int:
+    """The most memory (traced by Python) held while listing the bag and then loading its frames in order."""
+    tracemalloc.start()
+    try:
+        for frame in list_frames("rosbag2", bag):
+            frame.load()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_bag_is_read_in_memory_that_does_not_grow_with_its_length(tmp_path, storage):
+    rng = np.random.default_rng(0)
+    clouds = [rng.uniform(1, 9, (4000, 4)).astype(np.float32) for _ in range(80)]  # 64 kB messages
+    messages = [cloud_message(points, STAMP_NS + k * PERIOD_NS, "cube") for k, points in enumerate(clouds)]
+    short, long = (write_bag(tmp_path / name, {"/points": messages[:count]}, storage)
+                   for name, count in (("short", 20), ("long", 80)))
+    peak = _peak_bytes(long)
+    assert peak < 1.5 * _peak_bytes(short) and peak < sum(len(m.data) for m in messages) / 2  # MCAP: ~a chunk
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_frames_load_the_same_in_any_order_and_a_changed_bag_is_named(tmp_path, storage):
+    bag = driver_bag(tmp_path / "drive", 3, storage)
+    in_order = [frame.load() for frame in list_frames("rosbag2", bag)]
+    frames = list_frames("rosbag2", bag)
+    for index in (2, 0, 1, 1):  # back to the start, and the same message twice
+        np.testing.assert_array_equal(frames[index].load().points, in_order[index].points)
+        np.testing.assert_array_equal(frames[index].load().time, in_order[index].time)
+    listed = list_frames("rosbag2", bag)
+    shutil.rmtree(bag)
+    driver_bag(bag, 2, storage)  # recorded again, shorter, after it was listed
+    with pytest.raises(DataFormatError, match=re.escape(f"{bag}: topic /points, message 2: is gone: the bag changed "
+                                                        "after it was listed; read it again")):
+        listed[2].load()
 
 
 def kitti_frames(root: Path, count: int = 3) -> list[np.ndarray]:

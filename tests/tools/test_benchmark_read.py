@@ -19,5 +19,5 @@ def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, 
     assert done.value.code == 0
     rows = json.loads(output.read_text())["rows"]
     assert [row["source"] for row in rows] == ["KITTI .bin + time_offset/", "rosbag2, mcap", "rosbag2, sqlite3"]
-    assert all(row["ms_per_frame"] > 0 and row["points"] == 600 for row in rows)
+    assert all(row["ms_per_frame"] > 0 and row["peak_mb"] > 0 and row["points"] == 600 for row in rows)
     assert "| rosbag2, mcap |" in capsys.readouterr().out
