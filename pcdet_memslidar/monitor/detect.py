@@ -140,7 +140,9 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     if options.mcap is not None:
         _check_mcap(Path(options.mcap), src)
     fmt = resolve_format(src, options.fmt)
+    listing = time.perf_counter()
     frames = list_frames(fmt, src, options.time_unit_s, topic=options.topic)
+    listed_s = time.perf_counter() - listing  # reading too: a bag's listing decodes every message, a .bfpc's all
     if not frames:
         raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)
@@ -151,8 +153,8 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     process = Process(torch.device(device), torch.get_num_threads())  # its execution policy: Process.policy
     model, _ = load_detector(cfg, checkpoint, voxeliser, process, logger, options.precision)
     batch_size = options.batch_size or BATCH_SIZE[torch.device(device).type]
-    seconds, counts = Counter(), Counter()
-    started = time.perf_counter()
+    seconds, counts = Counter(read=listed_s), Counter()
+    started = time.perf_counter() - listed_s
     with atomic_dir(out, COMMAND) as tmp, (tmp / DETECTIONS_FILE).open("w") as lines, \
             threads_giving_way() as give_way, \
             _mcap_out(options, out, tmp, mount) as to_mcap:  # give_way: an edge box shares its cores

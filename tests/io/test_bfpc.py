@@ -1,5 +1,9 @@
-"""The .bfpc reader on the real Cube 1 recording and on corrupted copies of it."""
+"""The .bfpc reader on the real Cube 1 recording, on corrupted copies of it and on hand-made recordings whose
+frames hold every field the reader reads, left out, or broken (exact values and one-line errors)."""
 import gzip
+import re
+import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -95,3 +99,90 @@ def test_gzip_crc_failure_is_reported_as_corrupt_not_as_not_gzip(tmp_path):
     with pytest.raises(DataFormatError, match=r"plain\.bfpc: not a gzip stream \(it does not start with the gzip "
                                               r"bytes 1f 8b\)"):
         read_bfpc(tmp_path / "plain.bfpc")
+
+
+def varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        out.append((value & 0x7F) | (0x80 if value >= 0x80 else 0))
+        value >>= 7
+        if not out[-1] & 0x80:
+            return bytes(out)
+
+
+def int_field(number: int, value: int) -> bytes:
+    return varint(number << 3) + varint(value)
+
+
+def float_field(number: int, value: float) -> bytes:
+    return varint(number << 3 | 5) + struct.pack("<f", value)
+
+
+def message_field(number: int, body: bytes) -> bytes:
+    return varint(number << 3 | 2) + varint(len(body)) + body
+
+
+def echo(xyz=(1.5, 2.0, -0.25), distance=2.5, intensity=None, return_id=None, cartesian=None) -> bytes:
+    """A return: cartesian x, y, z (Blickfeld's axes), range, intensity and id where given."""
+    body = message_field(2, struct.pack("<3f", *xyz) if cartesian is None else cartesian)
+    body += float_field(3, distance) if distance is not None else b""
+    body += int_field(4, intensity) if intensity is not None else b""
+    return body + (int_field(1, return_id) if return_id is not None else b"")
+
+
+def recording(tmp_path, *lines: bytes) -> Path:
+    """A .bfpc file: a header, then one frame (id 7, start 1000 ns) of the given scan lines."""
+    frame = int_field(1, 7) + int_field(3, 1000) + b"".join(message_field(2, line) for line in lines)
+    messages = [message_field(1, message_field(2, b"cube-1")), message_field(1, frame)]
+    path = tmp_path / "made.bfpc"
+    path.write_bytes(gzip.compress(b"".join(varint(len(m)) + m for m in messages)))
+    return path
+
+
+FULL_POINT = (int_field(1, 42) + int_field(3, 250) + int_field(4, 3)
+              + message_field(5, float_field(1, 0.5) + float_field(2, -0.25))
+              + message_field(2, echo(intensity=9)) + message_field(2, echo((3.0, 4.0, 0.5), 5.0, 2, 1)))
+
+
+def test_a_made_frame_reads_every_field_and_the_defaults_of_those_left_out(tmp_path):
+    bare_point = int_field(3, 500)  # no id, direction or return
+    half_point = message_field(5, float_field(1, 1.0)) + message_field(2, echo(distance=None))  # no elevation
+    path = recording(tmp_path, int_field(1, 5) + message_field(3, FULL_POINT) + message_field(3, bare_point),
+                     message_field(3, half_point))  # the second line has no id
+    frame, = read_bfpc(path).frames
+    assert (frame.frame_id, frame.start_time_ns) == (7, 1000)
+    np.testing.assert_array_equal(frame.time_offset, np.array([250, 500, 0]) * 1e-9)  # [ns] * 1e-9
+    np.testing.assert_array_equal(frame.azimuth, [-0.5, np.nan, -1.0])  # KITTI: positive to the left
+    np.testing.assert_array_equal(frame.elevation, [-0.25, np.nan, np.nan])
+    np.testing.assert_array_equal(frame.scanline, [5, 5, 1])  # a line's index where it has no id
+    np.testing.assert_array_equal(frame.point_id, [42, 1, 2])  # a pulse's index where it has no id
+    np.testing.assert_array_equal(frame.ambient, [3, 0, 0])
+    np.testing.assert_array_equal(frame.returned, [True, False, True])
+    np.testing.assert_array_equal(frame.points, np.array([[2.0, -1.5, -0.25, 9.0], [4.0, -3.0, 0.5, 2.0],
+                                                          [2.0, -1.5, -0.25, 0.0]], np.float32))  # KITTI axes
+    np.testing.assert_array_equal(frame.ranges, np.array([2.5, 5.0, np.nan], np.float32))
+    np.testing.assert_array_equal(frame.return_pulse, [0, 0, 2])
+    np.testing.assert_array_equal(frame.return_id, [0, 1, 0])  # a return's number where it has no id
+
+
+@pytest.mark.parametrize("point, error", [
+    (int_field(1, 1) + float_field(3, 1.0), "field 'point.start_offset_ns' has the wrong wire type"),
+    (message_field(5, varint(1 << 3 | 1) + struct.pack("<d", 0.5)),
+     "field 'direction.azimuth' holds 8 bytes where a float32 has 4"),
+    (message_field(5, int_field(2, 3)), "field 'direction.elevation' has the wrong wire type"),
+    (int_field(5, 1), "field 'point.direction' has the wrong wire type"),
+    (int_field(2, 1), "field 'point.returns' has the wrong wire type"),
+    (message_field(2, echo(cartesian=struct.pack("<2f", 1.0, 2.0))), "a return without its 3 cartesian coordinates"),
+    (message_field(2, float_field(3, 1.0)), "a return without its 3 cartesian coordinates"),
+    (message_field(2, echo(intensity=None) + float_field(4, 1.0)), "field 'return.intensity' has the wrong wire type"),
+    (varint(6 << 3 | 3), "unsupported wire type 3 for field 6"),
+    (varint(1 << 3) + b"\xff" * 9 + b"\x02", "varint longer than 64 bits"),
+    (varint(1 << 3) + b"\xff", "message ends inside a varint (truncated)"),
+    (message_field(5, b"") + varint(2 << 3 | 2) + varint(50), "field runs past the end of its message"),
+], ids=["offset as float", "azimuth as float64", "elevation as varint", "direction as varint", "return as varint",
+        "2 coordinates", "no coordinates", "intensity as float", "wire type 3", "65-bit varint", "cut varint",
+        "field past its message"])
+def test_a_broken_field_of_a_point_is_refused_naming_the_message(tmp_path, point, error):
+    path = recording(tmp_path, int_field(1, 5) + message_field(3, FULL_POINT) + message_field(3, point))
+    with pytest.raises(DataFormatError, match=re.escape(f"{path}: message 1 at byte ") + r"\d+: " + re.escape(error)):
+        read_bfpc(path)
