@@ -4,24 +4,30 @@ A .bfpc file is a gzip stream of protobuf messages, each preceded by its length 
 file.PointCloud.Header, then file.PointCloud.Data messages holding a data.Frame each, and a last Data holding the
 footer. Field numbers follow Blickfeld's published .proto files (blickfeld-scanner-lib, protocol/blickfeld/):
 frames made of scan lines of points (pulses), each point with a time offset, a direction and up to 3 returns. The
-header, footer and each frame's own fields are read in Python (_fields); the scan lines of a frame, its bulk, by a
-compiled walk (_walk_frame) that reads the same fields with the same defaults and errors, about 6 ms a frame.
+stream is decompressed one message at a time (_stream), so a recording is held one frame at a time: read_pulses
+checks every frame while listing them and decodes a frame again when it is loaded. The header, footer and each
+frame's own fields are read in Python (_fields); the scan lines of a frame, its bulk, by a compiled walk
+(_walk_frame) with the same fields, defaults and errors, about 6 ms for a frame of 12,000 pulses.
 
 Everything returned is in KITTI LiDAR axes (x forward, y left, z up); Blickfeld's own frame is y forward, x right,
 z up, so x_k = y_b, y_k = -x_b, z_k = z_b, and azimuth is measured from +x_k, positive to the left.
 """
 from __future__ import annotations
 
+import contextlib
+import functools
 import gzip
+import itertools
 import struct
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.frames import PulseFrame, PulseRecording
+from pcdet_memslidar.io.frames import PulseFrame, PulseRecording, SequentialReader
 from pcdet_memslidar.utils.compiled import kernel
 
 # protobuf wire types
@@ -227,20 +233,27 @@ def _blickfeld_to_kitti(xyz: np.ndarray) -> np.ndarray:
     return np.stack([xyz[:, 1], -xyz[:, 0], xyz[:, 2]], axis=1)
 
 
-def _parse_frame(buf: bytes, span: tuple[int, int]) -> BfpcFrame:
-    """Decode one data.Frame message: its own fields here, its scan lines by the compiled _walk_frame."""
+def _checked_frame(buf: bytes, span: tuple[int, int]) -> tuple[dict, np.ndarray, np.ndarray, tuple[int, int]]:
+    """One data.Frame message read and checked through: its own fields, the stream as uint8, its scan lines (L, 2)
+    [start, end) and its numbers of pulses and returns (_walk_frame)."""
     frame = _fields(buf, *span)
     if 8 in frame:
         raise _WireError("packed frames (BSL >= 2.16 REF_FRAME_PACKED) are not supported: record with the "
                          "default (non-packed) point-cloud stream")
     lines = np.array([_expect(line, tuple, "frame.scanlines") for line in frame.get(2, [])], np.int64).reshape(-1, 2)
     data = np.frombuffer(buf, np.uint8)
-    counts = _walk_frame(data, lines, np.empty((0, 6)), np.empty((0, 7)))  # the first walk counts the rows
-    pulses, returns = np.empty((counts[3], 6)), np.empty((counts[4], 7))
-    status, a, b, _, _ = counts if counts[0] else _walk_frame(data, lines, pulses, returns)
+    status, a, b, pulses, returns = _walk_frame(data, lines, np.empty((0, 6)), np.empty((0, 7)))  # counts rows
     if status:
         arguments = (WALKED_FIELDS[a],) if status in (_WRONG_TYPE, _FLOAT64) else (a, b)
         raise _WireError(ERRORS[status].format(*arguments))
+    return frame, data, lines, (pulses, returns)
+
+
+def _parse_frame(buf: bytes, span: tuple[int, int]) -> BfpcFrame:
+    """Decode one data.Frame message: its own fields here, its scan lines by the compiled _walk_frame."""
+    frame, data, lines, (pulse_count, return_count) = _checked_frame(buf, span)
+    pulses, returns = np.empty((pulse_count, 6)), np.empty((return_count, 7))
+    _walk_frame(data, lines, pulses, returns)
     returned = np.zeros(len(pulses), dtype=bool)
     returned[returns[:, 5].astype(np.int64)] = True
     xyz = _blickfeld_to_kitti(returns[:, :3])
@@ -438,17 +451,11 @@ def _walk_frame(buf: np.ndarray, lines: np.ndarray, pulses: np.ndarray, returns:
     return _OK, 0, 0, pulse, echo
 
 
-def _decompress(path: Path) -> bytes:
-    """The decompressed bytes of a gzip file; DataFormatError naming the file when it is not gzip or is damaged."""
+@contextlib.contextmanager
+def _gzip_errors(path: Path) -> Iterator[None]:
+    """DataFormatError naming the file for a missing, unreadable or damaged gzip stream."""
     try:
-        with open(path, "rb") as file:
-            if file.read(2) != b"\x1f\x8b":
-                raise DataFormatError(path, "not a gzip stream (it does not start with the gzip bytes 1f 8b): a .bfpc "
-                                            "recording is gzip-compressed; check that the file is a Blickfeld "
-                                            "point-cloud recording")
-            file.seek(0)
-            with gzip.GzipFile(fileobj=file) as stream:
-                return stream.read()
+        yield
     except FileNotFoundError:
         raise DataFormatError(path, "file not found: give the path of a .bfpc recording") from None
     except (gzip.BadGzipFile, EOFError, zlib.error) as error:  # CRC or length check failed, bad deflate data, cut off
@@ -457,34 +464,59 @@ def _decompress(path: Path) -> bytes:
         raise DataFormatError(path, f"cannot be read ({error.strerror or error})") from None
 
 
-def _messages(path: Path, buf: bytes):
-    """Yield (index, (start, end)) of each length-prefixed message in the decompressed stream."""
-    pos, index = 0, 0
-    while pos < len(buf):
-        try:
-            length, start = _varint(buf, pos, len(buf))
-        except _WireError:
-            raise DataFormatError(path, f"message {index} at byte {pos}: truncated length prefix") from None
-        if start + length > len(buf):
-            raise DataFormatError(path, f"message {index} at byte {pos}: truncated ({length} bytes announced, "
-                                        f"{len(buf) - start} left); the recording was cut off: copy it again")
-        yield index, (start, start + length)
-        pos, index = start + length, index + 1
+@contextlib.contextmanager
+def _message_errors(path: Path, where: str) -> Iterator[None]:
+    """DataFormatError naming the file and the message (`where`) for bytes that are no Blickfeld message."""
+    try:
+        yield
+    except (_WireError, struct.error) as error:
+        raise DataFormatError(path, f"{where}: {error}") from None
 
 
-def read_bfpc(path: str | Path) -> BfpcRecording:
-    """Read a Blickfeld .bfpc recording; raise DataFormatError naming the file on bad input."""
-    path = Path(path)
-    buf = _decompress(path)
-    recording = None
-    for index, span in _messages(path, buf):
-        try:
-            message = _fields(buf, *span)
-            if recording is None:
+def _stream(path: Path) -> Iterator[tuple[str, bytes]]:
+    """('message <index> at byte <offset>', bytes) of each length-prefixed message of the .bfpc `path`,
+    decompressed one message at a time (offset: in the decompressed stream, after the length)."""
+    with _gzip_errors(path), open(path, "rb") as file:
+        if file.read(2) != b"\x1f\x8b":
+            raise DataFormatError(path, "not a gzip stream (it does not start with the gzip bytes 1f 8b): a .bfpc "
+                                        "recording is gzip-compressed; check that the file is a Blickfeld "
+                                        "point-cloud recording")
+        file.seek(0)
+        with gzip.GzipFile(fileobj=file) as stream:
+            pos = 0
+            for index in itertools.count():
+                prefix = bytearray(stream.read(1))
+                if not prefix:
+                    return
+                while prefix[-1] & 0x80 and len(prefix) < 10:
+                    prefix += stream.read(1)
+                try:
+                    length, _ = _varint(prefix, 0, len(prefix))
+                except _WireError:
+                    raise DataFormatError(path, f"message {index} at byte {pos}: truncated length prefix") from None
+                data = stream.read(length)
+                if len(data) < length:
+                    raise DataFormatError(path, f"message {index} at byte {pos}: truncated ({length} bytes "
+                                                f"announced, {len(data)} left); the recording was cut off: copy it "
+                                                "again")
+                yield f"message {index} at byte {pos + len(prefix)}", data
+                pos += len(prefix) + length
+
+
+def _records(path: Path) -> Iterator[tuple[str, object]]:
+    """The .bfpc `path` read once through, message by message: ('header', BfpcRecording without frames), then
+    ('frame', (where, bytes, span)) for each frame message, still to decode, and ('footer', (frames, points,
+    returns)) as the device counted them."""
+    header = False
+    for where, buf in _stream(path):
+        with _message_errors(path, where):
+            message = _fields(buf, 0, len(buf))
+            if not header:
                 device = _message(buf, message, 1, "header.device")
                 if not device or set(message) - {1, 2}:
                     raise _WireError("the first message is not a point-cloud header")
-                recording = BfpcRecording(
+                header = True
+                yield "header", BfpcRecording(
                     path=path, serial_number=_string(buf, device, 2, "header.cube_serial_number")
                     or _string(buf, device, 1, "header.legacy_cube_serial_number"),
                     firmware_version=_string(buf, device, 4, "header.firmware_version"),
@@ -492,39 +524,75 @@ def read_bfpc(path: str | Path) -> BfpcRecording:
                                                            "UNKNOWN_HARDWARE"),
                     start_time_ns=_last(device, 3, int, "header.start_time_ns", 0))
             elif 1 in message:
-                recording.frames.append(_parse_frame(buf, _last(message, 1, tuple, "data.frame")))
+                yield "frame", (where, buf, _last(message, 1, tuple, "data.frame"))
             elif 2 in message:
                 counter = _message(buf, _message(buf, message, 2, "data.footer"), 1, "footer.stats")
                 counter = _message(buf, counter, 1, "stats.counter")
-                recording.footer_frames = _last(counter, 1, int, "counter.frames")
-                recording.footer_points = _last(counter, 2, int, "counter.points")
-                recording.footer_returns = _last(counter, 3, int, "counter.returns")
+                yield "footer", tuple(_last(counter, number, int, f"counter.{name}")
+                                      for number, name in ((1, "frames"), (2, "points"), (3, "returns")))
             else:
                 raise _WireError("a data message with neither a frame nor a footer")
-        except (_WireError, struct.error) as error:
-            raise DataFormatError(path, f"message {index} at byte {span[0]}: {error}") from None
-    if recording is None:
+    if not header:
         raise DataFormatError(path, "empty recording: no header message")
+
+
+def read_bfpc(path: str | Path) -> BfpcRecording:
+    """Read a Blickfeld .bfpc recording, every frame decoded; raise DataFormatError naming the file on bad input."""
+    path = Path(path)
+    for kind, value in _records(path):
+        if kind == "header":
+            recording = value
+        elif kind == "frame":
+            where, buf, span = value
+            with _message_errors(path, where):
+                recording.frames.append(_parse_frame(buf, span))
+        else:
+            recording.footer_frames, recording.footer_points, recording.footer_returns = value
     return recording
 
 
 def read_pulses(path: str | Path) -> PulseRecording:
     """A .bfpc recording as frames of every pulse (each with its strongest return, if any) and its stored scan
-    pattern: what io.formats reads of the format."""
+    pattern: what io.formats reads of the format. Every frame is checked here and decoded when loaded, read again
+    from the file (io.frames.SequentialReader)."""
     path = Path(path)
-    recording = read_bfpc(path)
-    frames = []
-    for index, frame in enumerate(recording.frames):
-        cos_el = np.cos(frame.elevation)
-        directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
-                               np.sin(frame.elevation)], axis=1)
-        strongest = frame.first_returns()
-        points = np.full((frame.num_pulses, 4), np.nan, dtype=np.float32)
-        points[frame.return_pulse[strongest]] = frame.points[strongest]
-        frames.append(PulseFrame(f"{path.name}#{index}", frame.start_time_ns, directions, frame.time_offset, points,
-                                 len(frame.points) - len(strongest)))
-    stored = recording.scan_pattern
+    names, starts, stored = [], [], None
+    for kind, value in _records(path):
+        if kind == "frame":
+            where, buf, span = value
+            with _message_errors(path, where):
+                frame, *_ = _checked_frame(buf, span)
+                pattern_span = _last(frame, 5, tuple, "frame.scan_pattern")
+                if stored is None and pattern_span is not None:
+                    stored = BfpcScanPattern.parse(buf, _fields(buf, *pattern_span))
+                starts.append(_last(frame, 3, int, "frame.start_time_ns", 0))
+            names.append(f"{path.name}#{len(names)}")
+    frames = SequentialReader(lambda: _frame_messages(path), lambda index: DataFormatError(
+        path, f"frame {index} is gone: the recording changed after it was listed; read it again"))
     pattern = None if stored is None else dict(
         hfov_deg=np.degrees(stored.hfov), vfov_deg=np.degrees(stored.vfov), lines_up=stored.lines_up,
         lines_down=stored.lines_down, angle_spacing_deg=np.degrees(stored.angle_spacing))
-    return PulseRecording(frames, pattern)
+    return PulseRecording(names, starts, functools.partial(_pulse_frame, path, names, frames), pattern)
+
+
+def _frame_messages(path: Path) -> tuple[Iterator[tuple[int, tuple]], Callable[[], None]]:
+    """(index, (where, bytes, span)) of the frame messages of `path`, read again from its start; and their close."""
+    records = _records(path)
+    frames = (value for kind, value in records if kind == "frame")
+    return enumerate(frames), records.close
+
+
+def _pulse_frame(path: Path, names: list[str], frames: SequentialReader, index: int) -> PulseFrame:
+    """Frame `index` of the listed .bfpc `path` as a PulseFrame: every pulse's direction (KITTI axes) and time, and
+    its strongest return."""
+    where, buf, span = frames.item(index)
+    with _message_errors(path, where):
+        frame = _parse_frame(buf, span)
+    cos_el = np.cos(frame.elevation)
+    directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
+                           np.sin(frame.elevation)], axis=1)
+    strongest = frame.first_returns()
+    points = np.full((frame.num_pulses, 4), np.nan, dtype=np.float32)
+    points[frame.return_pulse[strongest]] = frame.points[strongest]
+    return PulseFrame(names[index], frame.start_time_ns, directions, frame.time_offset, points,
+                      len(frame.points) - len(strongest))

@@ -218,15 +218,17 @@ def _recorded_frames(fmt: InputFormat, files: list[Path], topic: str | None, tim
 
 
 def _strongest_returns(recording: PulseRecording) -> list[SourceFrame]:
-    """The frames of a recording of pulses as their strongest returns with their pulses' times [s]; a pulse without
-    return counts as dropped."""
-    frames = []
-    for frame in recording.frames:
-        returned = frame.returned
-        cloud = LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
-                            dropped=int((~returned).sum()), has_intensity=True, time_unit_s=1.0)
-        frames.append(SourceFrame(frame.name, lambda cloud=cloud: cloud, stamp_ns=frame.start_time_ns))
-    return frames
+    """The frames of a recording of pulses as their strongest returns with their pulses' times [s], each decoded
+    when loaded; a pulse without return counts as dropped."""
+    return [SourceFrame(name, functools.partial(_strongest_cloud, recording, index), stamp_ns=stamp_ns)
+            for index, (name, stamp_ns) in enumerate(zip(recording.names, recording.start_times_ns))]
+
+
+def _strongest_cloud(recording: PulseRecording, index: int) -> LoadedCloud:
+    frame = recording.load(index)
+    returned = frame.returned
+    return LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
+                       dropped=int((~returned).sum()), has_intensity=True, time_unit_s=1.0)
 
 
 register_format(InputFormat("bfpc", (".bfpc",), read_pulses=bfpc.read_pulses, self_timed=True))

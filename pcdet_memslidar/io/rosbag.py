@@ -21,7 +21,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import itertools
-import weakref
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -31,7 +30,7 @@ from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.store import Typestore
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.frames import SourceFrame, frame_stamp_ns
+from pcdet_memslidar.io.frames import SequentialReader, SourceFrame, frame_stamp_ns
 from pcdet_memslidar.io.pointclouds import LoadedCloud, cloud_from_fields, time_field
 from pcdet_memslidar.utils.atomic import atomic_dir
 from pcdet_memslidar.utils.progress import progress_bar
@@ -79,15 +78,14 @@ def read_bag(path: Path, topic: str | None = None, time_unit_s: float | None = N
 
 
 class BagMessages:
-    """The PointCloud2 messages of one topic of a bag by index, read for loading its frames in order by one open
-    reader (a message before the last one read opens the bag again): a bag is read in the memory of one message.
-    Reading a message twice (listing, loading) costs less than keeping a bag's messages (benchmarks.md)."""
+    """The PointCloud2 messages of one topic of a bag by index, decoded for listing and again for loading its frames
+    (io.frames.SequentialReader: one open reader, in order). Reading a message twice costs less than keeping a
+    bag's messages (benchmarks.md)."""
 
     def __init__(self, path: Path, topic: str):
         self.path, self.topic = path, topic
-        self._reader: list = []  # the open reader and its (index, raw) iterator, if any (closed when collected)
-        self._next = 0  # the index of the message the open reader reads next
-        weakref.finalize(self, _close_readers, self._reader)
+        self.raw = SequentialReader(self._open_messages, lambda index: DataFormatError(
+            self._where(index), "is gone: the bag changed after it was listed; read it again"))
 
     def decode(self, index: int, raw: bytes) -> tuple[object, np.dtype]:
         """The PointCloud2 of message `index` and its points' record (_point_dtype: the layout checked)."""
@@ -100,33 +98,15 @@ class BagMessages:
 
     def cloud(self, index: int, time_unit_s: float | None) -> LoadedCloud:
         """The cloud of message `index` (time_unit_s: read_bag's)."""
-        return _cloud(*self.decode(index, self._read(index)), self._where(index), time_unit_s)
+        return _cloud(*self.decode(index, self.raw.item(index)), self._where(index), time_unit_s)
 
-    def _read(self, index: int) -> bytes:
-        """The serialised message `index`, read by the open reader (opened again from the start for an earlier
-        message)."""
-        if not self._reader or index < self._next:
-            _close_readers(self._reader)
-            reader = _opened(self.path)
-            self._reader += [reader, _raw_messages(reader, _topic_connections(reader, self.path, self.topic),
-                                                   self.path, self.topic)]
-            self._next = 0
-        for position, raw in self._reader[1]:
-            self._next = position + 1
-            if position == index:
-                return raw
-        _close_readers(self._reader)
-        raise DataFormatError(self._where(index), "is gone: the bag changed after it was listed; read it again")
+    def _open_messages(self) -> tuple[Iterator[tuple[int, bytes]], Callable[[], None]]:
+        reader = _opened(self.path)
+        return _raw_messages(reader, _topic_connections(reader, self.path, self.topic), self.path,
+                             self.topic), reader.close
 
     def _where(self, index: int) -> str:
         return f"{self.path}: topic {self.topic}, message {index}"
-
-
-def _close_readers(opened: list) -> None:
-    """Close the reader in `opened` ([reader, messages] or empty) and empty it."""
-    if opened:
-        opened[0].close()
-        opened.clear()
 
 
 def _opened(path: Path) -> Reader:

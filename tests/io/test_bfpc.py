@@ -1,15 +1,18 @@
 """The .bfpc reader on the real Cube 1 recording, on corrupted copies of it and on hand-made recordings whose
-frames hold every field the reader reads, left out, or broken (exact values and one-line errors)."""
+frames hold every field the reader reads, left out, or broken (exact values and one-line errors); a recording is
+read in memory that does not grow with its length, its frames loaded in any order."""
 import gzip
 import re
 import struct
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pcdet_memslidar.errors import DataFormatError
-from pcdet_memslidar.io.bfpc import read_bfpc
+from pcdet_memslidar.io.bfpc import read_bfpc, read_pulses
+from pcdet_memslidar.io.formats import list_frames
 
 
 @pytest.mark.slow
@@ -90,7 +93,8 @@ def test_missing_file(tmp_path):
 
 
 def test_gzip_crc_failure_is_reported_as_corrupt_not_as_not_gzip(tmp_path):
-    data = bytearray(gzip.compress(b"\x00" * 100))
+    header = message_field(1, message_field(2, b"cube-1"))  # messages that read, then the trailer's CRC
+    data = bytearray(gzip.compress(varint(len(header)) + header))
     data[-8] ^= 0xFF  # the CRC-32 in the gzip trailer
     (tmp_path / "crc.bfpc").write_bytes(bytes(data))
     with pytest.raises(DataFormatError, match=r"crc\.bfpc: corrupt or truncated gzip data \(CRC check failed"):
@@ -186,3 +190,55 @@ def test_a_broken_field_of_a_point_is_refused_naming_the_message(tmp_path, point
     path = recording(tmp_path, int_field(1, 5) + message_field(3, FULL_POINT) + message_field(3, point))
     with pytest.raises(DataFormatError, match=re.escape(f"{path}: message 1 at byte ") + r"\d+: " + re.escape(error)):
         read_bfpc(path)
+
+
+def recording_of(tmp_path, real_recording, frames: list[int]) -> Path:
+    """The real recording's header, its frames `frames` (indices, in this order, repeats allowed) and its footer."""
+    stream, messages, pos = gzip.decompress(real_recording.read_bytes()), [], 0
+    while pos < len(stream):
+        start = pos
+        while stream[pos] & 0x80:
+            pos += 1
+        length = sum((byte & 0x7F) << 7 * k for k, byte in enumerate(stream[start:pos + 1]))
+        pos += 1 + length
+        messages.append(stream[start:pos])
+    path = tmp_path / f"{len(frames)}_frames.bfpc"
+    body = [messages[0], *(messages[1 + index] for index in frames), messages[-1]]
+    path.write_bytes(gzip.compress(b"".join(body), compresslevel=1))
+    return path
+
+
+def _peak_bytes(path: Path) -> int:
+    """The most memory (traced by Python) held while listing the recording and then loading its frames in order."""
+    tracemalloc.start()
+    try:
+        for frame in list_frames("bfpc", path):
+            frame.load()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.mark.slow
+def test_a_recording_is_read_in_memory_that_does_not_grow_with_its_length(tmp_path, real_recording):
+    short, long = (recording_of(tmp_path, real_recording, list(range(10)) * times) for times in (1, 4))
+    assert len(list_frames("bfpc", long)) == 40
+    peaks = _peak_bytes(short), _peak_bytes(long)
+    assert peaks[1] < 1.5 * peaks[0], peaks
+
+
+def test_frames_load_the_same_in_any_order_and_a_changed_recording_is_named(tmp_path, real_bfpc, real_recording):
+    pulses = read_pulses(real_recording)
+    assert pulses.names[:2] == ["cube1_sample_2020.bfpc#0", "cube1_sample_2020.bfpc#1"]
+    assert pulses.start_times_ns == [frame.start_time_ns for frame in real_bfpc.frames]
+    for index in (7, 2, 2, 9):  # back to the start, and the same frame twice
+        frame, whole = pulses.load(index), real_bfpc.frames[index]
+        strongest = whole.first_returns()
+        np.testing.assert_array_equal(frame.time_offset, whole.time_offset)
+        np.testing.assert_array_equal(frame.points[whole.return_pulse[strongest]], whole.points[strongest])
+    changed = recording_of(tmp_path, real_recording, list(range(10)))
+    listed = read_pulses(changed)
+    changed.write_bytes(recording_of(tmp_path / "..", real_recording, [0, 1, 2]).read_bytes())  # recorded again
+    with pytest.raises(DataFormatError, match=re.escape(f"{changed}: frame 9 is gone: the recording changed after it "
+                                                        "was listed; read it again")):
+        listed.load(9)
