@@ -339,6 +339,17 @@ def _read_message(buf: np.ndarray, start: int, end: int, last: np.ndarray) -> tu
 
 
 @kernel(inline="always")
+def _next_message(buf: np.ndarray, pos: int, end: int, number: int) -> tuple[int, int, int, int]:
+    """(status, position after it, start, end) of the next sub-message field `number` from buf[pos] on, in a read
+    message ending at `end`; start -1 where there is none (a field of another wire type: _WRONG_TYPE)."""
+    while pos < end:
+        _, field_number, wire, value, value_end, pos = _field(buf, pos, end)
+        if field_number == number:
+            return (_OK if wire == LENGTH_DELIMITED else _WRONG_TYPE), pos, np.int64(value), value_end
+    return _OK, pos, -1, -1
+
+
+@kernel(inline="always")
 def _int_field(last: np.ndarray, number: int, default: float) -> tuple[int, float]:
     """(status, value as float64) of the varint field `number` of a read message (as _last(..., int, ...)), or
     `default`."""
@@ -381,13 +392,12 @@ def _walk_frame(buf: np.ndarray, lines: np.ndarray, pulses: np.ndarray, returns:
         if status:
             return status, 0, 0, pulse, echo
         pos = start
-        while pos < end:  # the points (field 3) in order
-            _, number, wire, value, point_end, pos = _field(buf, pos, end)
-            if number != 3:
-                continue
-            if wire != LENGTH_DELIMITED:
-                return _WRONG_TYPE, 1, 0, pulse, echo
-            point = np.int64(value)
+        while True:  # the points (field 3) in order
+            status, pos, point, point_end = _next_message(buf, pos, end, 3)
+            if status:
+                return status, 1, 0, pulse, echo
+            if point < 0:
+                break
             status, a, b = _read_message(buf, point, point_end, point_fields)
             if status:
                 return status, a, b, pulse, echo
@@ -398,33 +408,29 @@ def _walk_frame(buf: np.ndarray, lines: np.ndarray, pulses: np.ndarray, returns:
                 status, a, b = _read_message(buf, point_fields[5, 1], point_fields[5, 2], direction)
                 if status:
                     return status, a, b, pulse, echo
-                status, azimuth = _float_field(buf, direction, 1)
+                azimuth_status, azimuth = _float_field(buf, direction, 1)
+                elevation_status, elevation = _float_field(buf, direction, 2)
+                for status, what in ((azimuth_status, 7), (elevation_status, 8)):
+                    if status:
+                        return status, what, 0, pulse, echo
+            time_status, time_ns = _int_field(point_fields, 3, 0.0)
+            id_status, point_id = _int_field(point_fields, 1, float(pulse))
+            ambient_status, ambient = _int_field(point_fields, 4, 0.0)
+            for status, what in ((time_status, 4), (id_status, 2), (ambient_status, 5)):
                 if status:
-                    return status, 7, 0, pulse, echo
-                status, elevation = _float_field(buf, direction, 2)
-                if status:
-                    return status, 8, 0, pulse, echo
-            status, time_ns = _int_field(point_fields, 3, 0.0)
-            if status:
-                return status, 4, 0, pulse, echo
-            status, point_id = _int_field(point_fields, 1, float(pulse))
-            if status:
-                return status, 2, 0, pulse, echo
-            status, ambient = _int_field(point_fields, 4, 0.0)
-            if status:
-                return status, 5, 0, pulse, echo
+                    return status, what, 0, pulse, echo
             if pulse < pulses.shape[0]:
                 pulses[pulse, 0], pulses[pulse, 1], pulses[pulse, 2] = time_ns, azimuth, elevation
                 pulses[pulse, 3], pulses[pulse, 4], pulses[pulse, 5] = line_id, point_id, ambient
             number_in_point = 0
             inner = point
-            while inner < point_end:  # the returns (field 2) in order
-                _, number, wire, value, echo_end, inner = _field(buf, inner, point_end)
-                if number != 2:
-                    continue
-                if wire != LENGTH_DELIMITED:
-                    return _WRONG_TYPE, 3, 0, pulse, echo
-                status, a, b = _read_message(buf, np.int64(value), echo_end, echo_fields)
+            while True:  # the returns (field 2) in order
+                status, inner, echo_start, echo_end = _next_message(buf, inner, point_end, 2)
+                if status:
+                    return status, 3, 0, pulse, echo
+                if echo_start < 0:
+                    break
+                status, a, b = _read_message(buf, echo_start, echo_end, echo_fields)
                 if status:
                     return status, a, b, pulse, echo
                 if echo_fields[2, 0] not in (-1, LENGTH_DELIMITED):
@@ -432,15 +438,12 @@ def _walk_frame(buf: np.ndarray, lines: np.ndarray, pulses: np.ndarray, returns:
                 xyz = echo_fields[2, 1]
                 if echo_fields[2, 0] == -1 or echo_fields[2, 2] - xyz != 12:
                     return _NO_XYZ, 0, 0, pulse, echo
-                status, distance = _float_field(buf, echo_fields, 3)
-                if status:
-                    return status, 11, 0, pulse, echo
-                status, intensity = _int_field(echo_fields, 4, 0.0)
-                if status:
-                    return status, 12, 0, pulse, echo
-                status, return_id = _int_field(echo_fields, 1, float(number_in_point))
-                if status:
-                    return status, 9, 0, pulse, echo
+                distance_status, distance = _float_field(buf, echo_fields, 3)
+                intensity_status, intensity = _int_field(echo_fields, 4, 0.0)
+                id_status, return_id = _int_field(echo_fields, 1, float(number_in_point))
+                for status, what in ((distance_status, 11), (intensity_status, 12), (id_status, 9)):
+                    if status:
+                        return status, what, 0, pulse, echo
                 if echo < returns.shape[0]:
                     returns[echo, :3] = buf[xyz:xyz + 12].view(np.float32)
                     returns[echo, 3], returns[echo, 4], returns[echo, 5] = distance, intensity, pulse

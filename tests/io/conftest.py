@@ -1,8 +1,13 @@
-"""Fixtures of the io tests (importer, ground): frames scanned at a known mount."""
+"""Fixtures of the io tests (importer, ground, recordings): frames scanned at a known mount, and the memory a
+recording's frames take to read."""
+import tracemalloc
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from pcdet_memslidar.geometry.mount import Mount
+from pcdet_memslidar.io.formats import list_frames
 from pcdet_memslidar.sim.pattern import get_pattern
 
 
@@ -29,3 +34,21 @@ def _scan_room(mount: Mount, seed: int) -> np.ndarray:
 def scan_room():
     """scan_room(mount, seed) -> (K, 4) points of a room scanned from `mount`, in the sensor frame."""
     return _scan_room
+
+
+def _peak_bytes(fmt: str, path: Path) -> int:
+    """The most memory (traced by Python) held while listing the recording `path` of format `fmt` and then loading
+    its frames in order."""
+    tracemalloc.start()
+    try:
+        for frame in list_frames(fmt, path):
+            frame.load()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+@pytest.fixture
+def peak_bytes():
+    """peak_bytes(fmt, path) -> the most memory [bytes] held while reading every frame of a recording."""
+    return _peak_bytes

@@ -4,7 +4,6 @@ read in memory that does not grow with its length, its frames loaded in any orde
 import gzip
 import re
 import struct
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -208,22 +207,11 @@ def recording_of(tmp_path, real_recording, frames: list[int]) -> Path:
     return path
 
 
-def _peak_bytes(path: Path) -> int:
-    """The most memory (traced by Python) held while listing the recording and then loading its frames in order."""
-    tracemalloc.start()
-    try:
-        for frame in list_frames("bfpc", path):
-            frame.load()
-        return tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-
-
 @pytest.mark.slow
-def test_a_recording_is_read_in_memory_that_does_not_grow_with_its_length(tmp_path, real_recording):
+def test_a_recording_is_read_in_memory_that_does_not_grow_with_its_length(tmp_path, real_recording, peak_bytes):
     short, long = (recording_of(tmp_path, real_recording, list(range(10)) * times) for times in (1, 4))
     assert len(list_frames("bfpc", long)) == 40
-    peaks = _peak_bytes(short), _peak_bytes(long)
+    peaks = peak_bytes("bfpc", short), peak_bytes("bfpc", long)
     assert peaks[1] < 1.5 * peaks[0], peaks
 
 
