@@ -38,7 +38,8 @@ def scan_room():
 
 def _peak_bytes(fmt: str, path: Path) -> int:
     """The most memory (traced by Python) held while listing the recording `path` of format `fmt` and then loading
-    its frames in order."""
+    its frames in order, after a first frame read untraced (what a first read compiles or caches does not count)."""
+    list_frames(fmt, path)[0].load()
     tracemalloc.start()
     try:
         for frame in list_frames(fmt, path):
