@@ -225,6 +225,7 @@ def _strongest_returns(recording: PulseRecording) -> list[SourceFrame]:
 
 
 def _strongest_cloud(recording: PulseRecording, index: int) -> LoadedCloud:
+    """Frame `index` of the recording: the strongest return of each pulse that has one, at its pulse's time [s]."""
     frame = recording.load(index)
     returned = frame.returned
     return LoadedCloud(points=frame.points[returned], time=frame.time_offset[returned],
