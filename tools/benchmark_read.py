@@ -1,18 +1,20 @@
-"""Reading speed of ROS 2 bags: the time per frame to read the same frames from a rosbag2 folder (MCAP and sqlite3
-storage) and from KITTI .bin files, measured in one run.
+"""Reading speed of recordings: the time per frame to read the same frames from a rosbag2 folder (MCAP and sqlite3
+storage) and from KITTI .bin files, and the bundled Cube 1 .bfpc recording against its own frames as KITTI files,
+measured in one run.
 
     python tools/benchmark_read.py                          # 50 frames of 30 000 points, median of 5 reads
     python tools/benchmark_read.py --frames 200 --points 100000
 
 The frames are made here (seed 0: random points, each with a time offset) as a KITTI layout with
-training/time_offset/ (io.layout.write_frame) and exported as bags (io.rosbag.export_bag: float32 x, y, z,
-intensity and time). A read is what `memslidar detect` and `import` do: list the frames (io.formats.list_frames),
-then load every cloud with its time offsets. Each source is read once before timing (a warm page cache), then the
-sources are read in turn --repeats times (so that a change in the machine's load touches all of them); a source's
-time is the median of its reads, in wall-clock time and in CPU time of this process (which other processes on a
-busy machine change less), the latter split into listing the frames and loading them; ratio = that source / the
-KITTI layout. One more read per source, traced by Python's tracemalloc, gives the most memory a read holds at once.
-Prints a Markdown table and the load average; JSON to output/benchmark/read_benchmark.json.
+training/time_offset/ (io.layout.write_frame) and exported as bags (io.rosbag.export_bag: float32 x, y, z, intensity
+and time); the .bfpc's frames (strongest returns and their times) are written as a second KITTI layout. A read is
+what `memslidar detect` and `import` do: list the frames (io.formats.list_frames), then load every cloud with its
+time offsets. Each source is read once before timing (a warm page cache), then the sources are read in turn
+--repeats times (so that a change in the machine's load touches all of them); a source's time is the median of its
+reads, in wall-clock time and in CPU time of this process (which other processes on a busy machine change less), the
+latter split into listing the frames and loading them; ratio = that source / the KITTI layout of the same frames.
+One more read per source, traced by Python's tracemalloc, gives the most memory a read holds at once. Prints a
+Markdown table and the load average; JSON to output/benchmark/read_benchmark.json.
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ from pcdet_memslidar.io.rosbag import STORAGES, export_bag
 from pcdet_memslidar.utils.atomic import write_text
 
 FRAME_PERIOD_S = 0.1
+BUNDLED_BFPC = Path(__file__).resolve().parents[1] / "pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc"
 
 
 def make_sources(root: Path, frames: int, points: int) -> dict[str, tuple[str, Path]]:
@@ -49,6 +52,17 @@ def make_sources(root: Path, frames: int, points: int) -> dict[str, tuple[str, P
         export_bag(list_frames("kitti", layout.root), root / storage, FRAME_PERIOD_S, storage)
         sources[f"rosbag2, {storage}"] = ("rosbag2", root / storage)
     return sources
+
+
+def bfpc_sources(root: Path) -> dict[str, tuple[str, Path]]:
+    """{source name: (format, path)}: the bundled .bfpc recording, and its frames as read (strongest returns with
+    their times) written as a KITTI layout."""
+    layout = KittiLayout(root / "bfpc_kitti")
+    for index, frame in enumerate(list_frames("bfpc", BUNDLED_BFPC)):
+        cloud = frame.load()
+        write_frame(layout, f"{index:06d}", cloud.points, [], np.zeros((0, 7)), {}, time_offset=cloud.time_offsets())
+    return {"its frames as KITTI .bin + time_offset/": ("kitti", layout.root),
+            ".bfpc (the bundled Cube 1 recording)": ("bfpc", BUNDLED_BFPC)}
 
 
 def read_ms(fmt: str, src: Path) -> tuple[tuple[float, float, float], int]:
@@ -94,23 +108,27 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
-        sources = make_sources(Path(folder), args.frames, args.points)
-        for name, ((ms, list_ms, load_ms), count) in read_all(sources, args.repeats).items():
-            fmt, src = sources[name]
-            size = sum(path.stat().st_size for path in src.rglob("*") if path.is_file())
-            rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "cpu_ms_per_frame": list_ms + load_ms,
-                         "cpu_ms_list": list_ms, "cpu_ms_load": load_ms, "points": count, "bytes": size,
-                         "peak_mb": peak_mb(fmt, src)})
-    if len({row["points"] for row in rows}) != 1:
-        raise RuntimeError(f"the sources gave different numbers of points: {rows}")
-    print(f"\n{args.frames} frames of {args.points} points (float32 x, y, z, intensity, time); median of "
-          f"{args.repeats} reads in turn, page cache warm; ratio = source / KITTI\n")
+        for group in (make_sources(Path(folder), args.frames, args.points), bfpc_sources(Path(folder))):
+            first = len(rows)  # the group's KITTI layout: its reference
+            for name, ((ms, list_ms, load_ms), count) in read_all(group, args.repeats).items():
+                fmt, src = group[name]
+                size = sum(path.stat().st_size for path in ([src] if src.is_file() else src.rglob("*"))
+                           if path.is_file())
+                rows.append({"source": name, "format": fmt, "ms_per_frame": ms, "cpu_ms_per_frame": list_ms + load_ms,
+                             "cpu_ms_list": list_ms, "cpu_ms_load": load_ms, "points": count, "bytes": size,
+                             "peak_mb": peak_mb(fmt, src), "reference": first})
+            if len({row["points"] for row in rows[first:]}) != 1:
+                raise RuntimeError(f"the sources gave different numbers of points: {rows[first:]}")
+    print(f"\n{args.frames} frames of {args.points} points (float32 x, y, z, intensity, time), then the bundled "
+          f".bfpc's 10 frames; median of {args.repeats} reads in turn, page cache warm; ratio = source / the KITTI "
+          "layout of its frames\n")
     print("| source | ms per frame | ratio | CPU ms per frame (list + load) | CPU ratio | MB on disk | peak MB held |\n"
           "|---|---|---|---|---|---|---|")
     for row in rows:
-        print(f"| {row['source']} | {row['ms_per_frame']:.2f} | {row['ms_per_frame'] / rows[0]['ms_per_frame']:.2f}x "
+        reference = rows[row["reference"]]
+        print(f"| {row['source']} | {row['ms_per_frame']:.2f} | {row['ms_per_frame'] / reference['ms_per_frame']:.2f}x "
               f"| {row['cpu_ms_per_frame']:.2f} ({row['cpu_ms_list']:.2f} + {row['cpu_ms_load']:.2f}) "
-              f"| {row['cpu_ms_per_frame'] / rows[0]['cpu_ms_per_frame']:.2f}x | {row['bytes'] / 1e6:.1f} "
+              f"| {row['cpu_ms_per_frame'] / reference['cpu_ms_per_frame']:.2f}x | {row['bytes'] / 1e6:.1f} "
               f"| {row['peak_mb']:.1f} |")
     load = os.getloadavg()
     print(f"\nload average (1, 5, 15 min) at the end: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")

@@ -1,5 +1,5 @@
 """tools/benchmark_read.py: one small run prints the read time per frame of the KITTI layout and of both bag
-storages, as a ratio to the KITTI layout."""
+storages, and of the bundled .bfpc recording and its frames as a KITTI layout, each as a ratio to its KITTI layout."""
 import json
 import runpy
 import sys
@@ -10,7 +10,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[2]
 
 
-def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, capsys):
+def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, capsys, real_bfpc):
     output = tmp_path / "read.json"
     monkeypatch.setattr(sys, "argv", ["benchmark_read.py", "--frames", "3", "--points", "200", "--repeats", "1",
                                       "--output", str(output)])
@@ -18,6 +18,10 @@ def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, 
         runpy.run_path(str(REPO / "tools" / "benchmark_read.py"), run_name="__main__")
     assert done.value.code == 0
     rows = json.loads(output.read_text())["rows"]
-    assert [row["source"] for row in rows] == ["KITTI .bin + time_offset/", "rosbag2, mcap", "rosbag2, sqlite3"]
-    assert all(row["ms_per_frame"] > 0 and row["peak_mb"] > 0 and row["points"] == 600 for row in rows)
+    assert [row["source"] for row in rows] == ["KITTI .bin + time_offset/", "rosbag2, mcap", "rosbag2, sqlite3",
+                                               "its frames as KITTI .bin + time_offset/",
+                                               ".bfpc (the bundled Cube 1 recording)"]
+    assert all(row["ms_per_frame"] > 0 and row["peak_mb"] > 0 for row in rows)
+    assert [row["points"] for row in rows[:3]] == [600] * 3 and rows[3]["points"] == rows[4]["points"] == sum(
+        frame.returned.sum() for frame in real_bfpc.frames)  # strongest returns
     assert "| rosbag2, mcap |" in capsys.readouterr().out
