@@ -233,27 +233,41 @@ def _blickfeld_to_kitti(xyz: np.ndarray) -> np.ndarray:
     return np.stack([xyz[:, 1], -xyz[:, 0], xyz[:, 2]], axis=1)
 
 
-def _checked_frame(buf: bytes, span: tuple[int, int]) -> tuple[dict, np.ndarray, np.ndarray, tuple[int, int]]:
-    """One data.Frame message read and checked through: its own fields, the stream as uint8, its scan lines (L, 2)
-    [start, end) and its numbers of pulses and returns (_walk_frame)."""
+def _frame_lines(buf: bytes, span: tuple[int, int]) -> tuple[dict, np.ndarray, np.ndarray]:
+    """One data.Frame message's own fields, the stream as uint8 and the frame's scan lines (L, 2) [start, end)."""
     frame = _fields(buf, *span)
     if 8 in frame:
         raise _WireError("packed frames (BSL >= 2.16 REF_FRAME_PACKED) are not supported: record with the "
                          "default (non-packed) point-cloud stream")
     lines = np.array([_expect(line, tuple, "frame.scanlines") for line in frame.get(2, [])], np.int64).reshape(-1, 2)
-    data = np.frombuffer(buf, np.uint8)
-    status, a, b, pulses, returns = _walk_frame(data, lines, np.empty((0, 6)), np.empty((0, 7)))  # counts rows
+    return frame, np.frombuffer(buf, np.uint8), lines
+
+
+def _walked(data: np.ndarray, lines: np.ndarray, pulses: np.ndarray, returns: np.ndarray) -> tuple[int, int]:
+    """_walk_frame's numbers of pulses and returns (rows written where the arrays have room); _WireError where a
+    field is broken."""
+    status, a, b, pulse_count, return_count = _walk_frame(data, lines, pulses, returns)
     if status:
         arguments = (WALKED_FIELDS[a],) if status in (_WRONG_TYPE, _FLOAT64) else (a, b)
         raise _WireError(ERRORS[status].format(*arguments))
-    return frame, data, lines, (pulses, returns)
+    return pulse_count, return_count
 
 
-def _parse_frame(buf: bytes, span: tuple[int, int]) -> BfpcFrame:
-    """Decode one data.Frame message: its own fields here, its scan lines by the compiled _walk_frame."""
-    frame, data, lines, (pulse_count, return_count) = _checked_frame(buf, span)
-    pulses, returns = np.empty((pulse_count, 6)), np.empty((return_count, 7))
-    _walk_frame(data, lines, pulses, returns)
+def _checked_frame(buf: bytes, span: tuple[int, int]) -> tuple[dict, tuple[int, int]]:
+    """One data.Frame message read and checked through, unkept: its own fields and its numbers of pulses and
+    returns."""
+    frame, data, lines = _frame_lines(buf, span)
+    return frame, _walked(data, lines, np.empty((0, 6)), np.empty((0, 7)))
+
+
+def _parse_frame(buf: bytes, span: tuple[int, int], counts: tuple[int, int] | None = None) -> BfpcFrame:
+    """Decode one data.Frame message: its own fields here, its scan lines by the compiled _walk_frame; counts: its
+    numbers of pulses and returns where already known (_checked_frame when the frame was listed)."""
+    frame, data, lines = _frame_lines(buf, span)
+    counts = counts or _walked(data, lines, np.empty((0, 6)), np.empty((0, 7)))
+    pulses, returns = np.empty((counts[0], 6)), np.empty((counts[1], 7))
+    if _walked(data, lines, pulses, returns) != counts:
+        raise _WireError("the frame holds other pulses than when it was listed: the recording changed; read it again")
     returned = np.zeros(len(pulses), dtype=bool)
     returned[returns[:, 5].astype(np.int64)] = True
     xyz = _blickfeld_to_kitti(returns[:, :3])
@@ -559,12 +573,13 @@ def read_pulses(path: str | Path) -> PulseRecording:
     pattern: what io.formats reads of the format. Every frame is checked here and decoded when loaded, read again
     from the file (io.frames.SequentialReader)."""
     path = Path(path)
-    names, starts, stored = [], [], None
+    names, starts, counts, stored = [], [], [], None
     for kind, value in _records(path):
         if kind == "frame":
             where, buf, span = value
             with _message_errors(path, where):
-                frame, *_ = _checked_frame(buf, span)
+                frame, frame_counts = _checked_frame(buf, span)
+                counts.append(frame_counts)
                 pattern_span = _last(frame, 5, tuple, "frame.scan_pattern")
                 if stored is None and pattern_span is not None:
                     stored = BfpcScanPattern.parse(buf, _fields(buf, *pattern_span))
@@ -575,7 +590,7 @@ def read_pulses(path: str | Path) -> PulseRecording:
     pattern = None if stored is None else dict(
         hfov_deg=np.degrees(stored.hfov), vfov_deg=np.degrees(stored.vfov), lines_up=stored.lines_up,
         lines_down=stored.lines_down, angle_spacing_deg=np.degrees(stored.angle_spacing))
-    return PulseRecording(names, starts, functools.partial(_pulse_frame, path, names, frames), pattern)
+    return PulseRecording(names, starts, functools.partial(_pulse_frame, path, names, counts, frames), pattern)
 
 
 def _frame_messages(path: Path) -> tuple[Iterator[tuple[int, tuple]], Callable[[], None]]:
@@ -585,12 +600,13 @@ def _frame_messages(path: Path) -> tuple[Iterator[tuple[int, tuple]], Callable[[
     return enumerate(frames), records.close
 
 
-def _pulse_frame(path: Path, names: list[str], frames: SequentialReader, index: int) -> PulseFrame:
-    """Frame `index` of the listed .bfpc `path` as a PulseFrame: every pulse's direction (KITTI axes) and time, and
-    its strongest return."""
+def _pulse_frame(path: Path, names: list[str], counts: list[tuple[int, int]], frames: SequentialReader,
+                 index: int) -> PulseFrame:
+    """Frame `index` of the listed .bfpc `path` (its names and numbers of pulses and returns) as a PulseFrame: every
+    pulse's direction (KITTI axes) and time, and its strongest return."""
     where, buf, span = frames.item(index)
     with _message_errors(path, where):
-        frame = _parse_frame(buf, span)
+        frame = _parse_frame(buf, span, counts[index])
     cos_el = np.cos(frame.elevation)
     directions = np.stack([cos_el * np.cos(frame.azimuth), cos_el * np.sin(frame.azimuth),
                            np.sin(frame.elevation)], axis=1)

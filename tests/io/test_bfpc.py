@@ -226,7 +226,12 @@ def test_frames_load_the_same_in_any_order_and_a_changed_recording_is_named(tmp_
         np.testing.assert_array_equal(frame.points[whole.return_pulse[strongest]], whole.points[strongest])
     changed = recording_of(tmp_path, real_recording, list(range(10)))
     listed = read_pulses(changed)
-    changed.write_bytes(recording_of(tmp_path / "..", real_recording, [0, 1, 2]).read_bytes())  # recorded again
+    (tmp_path / "again").mkdir()
+    again = recording_of(tmp_path / "again", real_recording, [1, 0, 2])  # other frames (11,652 returns, not 11,646)
+    changed.write_bytes(again.read_bytes())  # recorded again after the listing
+    with pytest.raises(DataFormatError, match=re.escape(f"{changed}: message 1 at byte ") + r"\d+: " + re.escape(
+            "the frame holds other pulses than when it was listed: the recording changed; read it again")):
+        listed.load(0)
     with pytest.raises(DataFormatError, match=re.escape(f"{changed}: frame 9 is gone: the recording changed after it "
                                                         "was listed; read it again")):
         listed.load(9)
