@@ -33,7 +33,7 @@ from pcdet_memslidar.utils.compiled import kernel
 # protobuf wire types
 VARINT, FIXED64, LENGTH_DELIMITED, FIXED32 = 0, 1, 2, 5
 
-# what the compiled frame walker (_walk_frame) reports, by status; the Python parser raises the same words
+# what the compiled frame walker (_walk_frame) and _fields report, by status
 _OK, _VARINT_CUT, _VARINT_LONG, _WIRE, _PAST_END, _WRONG_TYPE, _NO_XYZ, _FLOAT64 = range(8)
 ERRORS = {_VARINT_CUT: "message ends inside a varint (truncated)", _VARINT_LONG: "varint longer than 64 bits",
           _WIRE: "unsupported wire type {} for field {}",
@@ -56,48 +56,26 @@ class _WireError(ValueError):
     """Malformed protobuf bytes; turned into a DataFormatError naming the file and the message."""
 
 
-def _varint(buf: bytes, pos: int, end: int) -> tuple[int, int]:
-    """Decode the varint at buf[pos]; return (value, position after it)."""
-    value = shift = 0
-    while pos < end:
-        byte = buf[pos]
-        pos += 1
-        if shift == 63 and byte > 1:
-            raise _WireError(ERRORS[_VARINT_LONG])
-        value |= (byte & 0x7F) << shift
-        if byte < 0x80:
-            return value, pos
-        shift += 7
-    raise _WireError(ERRORS[_VARINT_CUT])
-
-
 def _fields(buf: bytes, start: int, end: int) -> dict[int, list]:
-    """Parse one message in buf[start:end] into {field number: [values]}.
+    """Parse one message in buf[start:end] into {field number: [values]}, field by field with the compiled walk's
+    _field.
 
     Values: int for varints, bytes for fixed32 / fixed64, (start, end) index pairs for length-delimited fields.
     """
+    data = np.frombuffer(buf, np.uint8)
     fields: dict[int, list] = {}
     pos = start
     while pos < end:
-        key, pos = _varint(buf, pos, end)
-        number, wire_type = key >> 3, key & 7
+        status, number, wire_type, value, value_end, pos = _field(data, pos, end)
+        if status:
+            raise _WireError(ERRORS[status].format(number, wire_type))  # _WIRE: (wire type, number)
         if wire_type == VARINT:
-            value, pos = _varint(buf, pos, end)
+            value = int(value)
         elif wire_type == LENGTH_DELIMITED:
-            length, pos = _varint(buf, pos, end)
-            value = (pos, pos + length)
-            pos += length
-        elif wire_type == FIXED32:
-            value = buf[pos:pos + 4]
-            pos += 4
-        elif wire_type == FIXED64:
-            value = buf[pos:pos + 8]
-            pos += 8
-        else:
-            raise _WireError(ERRORS[_WIRE].format(wire_type, number))
-        if pos > end or number == 0:
-            raise _WireError(ERRORS[_PAST_END])
-        fields.setdefault(number, []).append(value)
+            value = (int(value), int(value_end))
+        else:  # fixed32 / fixed64
+            value = bytes(buf[int(value):int(value_end)])
+        fields.setdefault(int(number), []).append(value)
     return fields
 
 
@@ -264,7 +242,8 @@ def _parse_frame(buf: bytes, span: tuple[int, int], counts: tuple[int, int] | No
     """Decode one data.Frame message: its own fields here, its scan lines by the compiled _walk_frame; counts: its
     numbers of pulses and returns where already known (_checked_frame when the frame was listed)."""
     frame, data, lines = _frame_lines(buf, span)
-    counts = counts or _walked(data, lines, np.empty((0, 6)), np.empty((0, 7)))
+    if counts is None:
+        counts = _walked(data, lines, np.empty((0, 6)), np.empty((0, 7)))
     pulses, returns = np.empty((counts[0], 6)), np.empty((counts[1], 7))
     if _walked(data, lines, pulses, returns) != counts:
         raise _WireError("the frame holds other pulses than when it was listed: the recording changed; read it again")
@@ -289,7 +268,7 @@ def _parse_frame(buf: bytes, span: tuple[int, int], counts: tuple[int, int] | No
 # Each helper returns a status first (_OK or an ERRORS key); buf is the decompressed stream as uint8.
 @kernel(inline="always")
 def _varint_at(buf: np.ndarray, pos: int, end: int) -> tuple[int, np.uint64, int]:
-    """(status, value, position after it) of the varint at buf[pos] (at most 64 bits, as _varint)."""
+    """(status, value, position after it) of the varint at buf[pos] (at most 64 bits)."""
     value = np.uint64(0)
     shift = 0
     while pos < end:
@@ -307,8 +286,8 @@ def _varint_at(buf: np.ndarray, pos: int, end: int) -> tuple[int, np.uint64, int
 @kernel(inline="always")
 def _field(buf: np.ndarray, pos: int, end: int) -> tuple[int, int, int, np.uint64, int, int]:
     """(status, number, wire type, value, value end, next position) of the field at buf[pos] of a message ending
-    at `end` (as _fields): value is a varint's value, else where the field's bytes start (value end: where they
-    end). A wire-type error reports (wire type, number) as (number, wire type)."""
+    at `end`: value is a varint's value, else where the field's bytes start (value end: where they end). A
+    wire-type error reports (wire type, number) as (number, wire type)."""
     status, key, pos = _varint_at(buf, pos, end)
     if status:
         return status, 0, 0, np.uint64(0), 0, pos
@@ -339,7 +318,7 @@ def _field(buf: np.ndarray, pos: int, end: int) -> tuple[int, int, int, np.uint6
 
 @kernel
 def _read_message(buf: np.ndarray, start: int, end: int, last: np.ndarray) -> tuple[int, int, int]:
-    """(status, a, b) of reading every field of the message buf[start:end] (as _fields), keeping the last field of
+    """(status, a, b) of reading every field of the message buf[start:end] (as _fields does), keeping the last field of
     each number n in 1..5 as last[n] = (wire type, value, value end) (wire type -1: none; value: _field's)."""
     last[:, 0] = -1
     pos = start
@@ -507,10 +486,10 @@ def _stream(path: Path) -> Iterator[tuple[str, bytes]]:
                     return
                 while prefix[-1] & 0x80 and len(prefix) < 10:
                     prefix += stream.read(1)
-                try:
-                    length, _ = _varint(prefix, 0, len(prefix))
-                except _WireError:
-                    raise DataFormatError(path, f"message {index} at byte {pos}: truncated length prefix") from None
+                status, length, _ = _varint_at(np.frombuffer(bytes(prefix), np.uint8), 0, len(prefix))
+                if status:
+                    raise DataFormatError(path, f"message {index} at byte {pos}: truncated length prefix")
+                length = int(length)
                 data = stream.read(length)
                 if len(data) < length:
                     raise DataFormatError(path, f"message {index} at byte {pos}: truncated ({length} bytes "

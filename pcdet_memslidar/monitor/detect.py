@@ -142,7 +142,7 @@ def detect(cfg, checkpoint: str | Path | None, options: DetectOptions, logger: l
     fmt = resolve_format(src, options.fmt)
     listing = time.perf_counter()
     frames = list_frames(fmt, src, options.time_unit_s, topic=options.topic)
-    listed_s = time.perf_counter() - listing  # reading too: a bag's listing decodes every message, a .bfpc's all
+    listed_s = time.perf_counter() - listing  # reading too: a bag or a .bfpc is read through and checked to list it
     if not frames:
         raise DataFormatError(src, "holds no frames: give a recording with at least one frame")
     mount, mount_entry = choose_mount(frames, options.mount, options.estimate_ground)
