@@ -1,6 +1,6 @@
 """Reading speed of recordings: the time per frame to read the same frames from a rosbag2 folder (MCAP and sqlite3
 storage) and from KITTI .bin files, and the bundled Cube 1 .bfpc recording against its own frames as KITTI files,
-measured in one run.
+measured in one run; beside the bags, rosbags' floor: each message read once, without listing.
 
     python tools/benchmark_read.py                          # 50 frames of 30 000 points, median of 5 reads
     python tools/benchmark_read.py --frames 200 --points 100000
@@ -9,7 +9,9 @@ The frames are made here (seed 0: random points, each with a time offset) as a K
 training/time_offset/ (io.layout.write_frame) and exported as bags (io.rosbag.export_bag: float32 x, y, z, intensity
 and time); the .bfpc's frames (strongest returns and their times) are written as a second KITTI layout. A read is
 what `memslidar detect` and `import` do: list the frames (io.formats.list_frames), then load every cloud with its
-time offsets. Each source is read once before timing (a warm page cache), then the sources are read in turn
+time offsets. The floor rows read a bag as a single pass would: frame counts from its metadata, every message
+read and decoded once, in order (io.rosbag.BagMessages: no listing, so no header stamps or layout checks before the
+first frame loads). Each source is read once before timing (a warm page cache), then the sources are read in turn
 --repeats times (so that a change in the machine's load touches all of them); a source's time is the median of its
 reads, in wall-clock time and in CPU time of this process (which other processes on a busy machine change less), the
 latter split into listing the frames and loading them; ratio = that source / the KITTI layout of the same frames.
@@ -19,6 +21,7 @@ Markdown table and the load average; JSON to output/benchmark/read_benchmark.jso
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import statistics
@@ -29,13 +32,16 @@ import tracemalloc
 from pathlib import Path
 
 import numpy as np
+from rosbags.rosbag2 import Reader
 
 from pcdet_memslidar.io.formats import list_frames
 from pcdet_memslidar.io.layout import KittiLayout, write_frame
-from pcdet_memslidar.io.rosbag import STORAGES, export_bag
+from pcdet_memslidar.io.rosbag import STORAGES, BagMessages, export_bag
 from pcdet_memslidar.utils.atomic import write_text
 
 FRAME_PERIOD_S = 0.1
+TOPIC = "/points"  # export_bag's
+ONCE = "rosbag2, read once"  # the floor rows' format
 BUNDLED_BFPC = Path(__file__).resolve().parents[1] / "pcdet_memslidar/assets/blickfeld/cube1_sample_2020.bfpc"
 
 
@@ -51,6 +57,8 @@ def make_sources(root: Path, frames: int, points: int) -> dict[str, tuple[str, P
     for storage in STORAGES:
         export_bag(list_frames("kitti", layout.root), root / storage, FRAME_PERIOD_S, storage)
         sources[f"rosbag2, {storage}"] = ("rosbag2", root / storage)
+    for storage in STORAGES:
+        sources[f"rosbag2, {storage}: read once, not listed (floor)"] = (ONCE, root / storage)
     return sources
 
 
@@ -65,13 +73,23 @@ def bfpc_sources(root: Path) -> dict[str, tuple[str, Path]]:
             ".bfpc (the bundled Cube 1 recording)": ("bfpc", BUNDLED_BFPC)}
 
 
+def loaders(fmt: str, src: Path) -> list:
+    """The loaders of the frames of `src`: listed by io.formats, or for ONCE (a bag) counted from its metadata."""
+    if fmt != ONCE:
+        return [frame.load for frame in list_frames(fmt, src)]
+    messages = BagMessages(src, TOPIC)
+    with Reader(src) as reader:
+        count = sum(connection.msgcount for connection in reader.connections if connection.topic == TOPIC)
+    return [functools.partial(messages.cloud, index, None) for index in range(count)]
+
+
 def read_ms(fmt: str, src: Path) -> tuple[tuple[float, float, float], int]:
     """((wall-clock ms, CPU ms listing the frames, CPU ms loading them) per frame of one read of `src`, points
     read)."""
     start, cpu = time.perf_counter(), time.process_time()
-    frames = list_frames(fmt, src)
+    frames = loaders(fmt, src)
     listed = time.process_time()
-    count = sum(len(frame.load().points) for frame in frames)
+    count = sum(len(load().points) for load in frames)
     ms = [(time.perf_counter() - start), listed - cpu, time.process_time() - listed]
     return tuple(value * 1000 / len(frames) for value in ms), count
 
@@ -80,8 +98,8 @@ def peak_mb(fmt: str, src: Path) -> float:
     """The most memory [MB] Python traces at once while reading `src` as read_ms does (listing, then loading)."""
     tracemalloc.start()
     try:
-        for frame in list_frames(fmt, src):
-            frame.load()
+        for load in loaders(fmt, src):
+            load()
         return tracemalloc.get_traced_memory()[1] / 1e6
     finally:
         tracemalloc.stop()

@@ -88,10 +88,11 @@ class BagMessages:
             self._where(index), "is gone: the bag changed after it was listed; read it again"))
 
     def decode(self, index: int, raw: bytes) -> tuple[object, np.dtype]:
-        """The PointCloud2 of message `index` and its points' record (_point_dtype: the layout checked)."""
+        """The PointCloud2 of message `index` and its points' record (_point_dtype: the layout checked); its data is
+        a view of `raw`, not a copy."""
         where = self._where(index)
         try:
-            message = typestore().deserialize_cdr(raw, POINTCLOUD2)
+            message = typestore().deserialize_cdr(memoryview(raw), POINTCLOUD2)
         except Exception as error:  # rosbags' decoder on damaged bytes (SerdeError, struct's, unicode's)
             raise DataFormatError(where, f"cannot be decoded as a PointCloud2 ({error}): {DAMAGED}") from None
         return message, _point_dtype(message, where)

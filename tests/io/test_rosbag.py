@@ -64,14 +64,15 @@ def pointcloud2(points: np.ndarray, frame: int = 0, big_endian: bool = False, ro
 
 
 def write_bag(path: Path, messages: dict[str, list], storage: str = "mcap") -> Path:
-    """A rosbag2 folder written by rosbags' own writer: {topic: [message, ...]}, logged 1 ms after their stamps."""
+    """A rosbag2 folder written by rosbags' own writer: {topic: [message, ...]}, logged 1 ms after their stamps; a
+    message given as bytes is written as they are (damaged data), with the type of the topic's first message."""
     plugin = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}[storage]
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         for topic, items in messages.items():
             connection = writer.add_connection(topic, items[0].__msgtype__, typestore=typestore())
             for index, message in enumerate(items):
-                writer.write(connection, STAMP_NS + index * PERIOD_NS + 1_000_000,
-                             typestore().serialize_cdr(message, message.__msgtype__))
+                raw = message if isinstance(message, bytes) else typestore().serialize_cdr(message, message.__msgtype__)
+                writer.write(connection, STAMP_NS + index * PERIOD_NS + 1_000_000, raw)
     return path
 
 
@@ -150,6 +151,11 @@ def _cut_off(bag: Path) -> None:
     (bag / f"{bag.name}.mcap").write_bytes(data[:len(data) // 2])  # a recorder that was killed
 
 
+def _serialised(points: np.ndarray) -> bytes:
+    message = pointcloud2(points, 1)
+    return bytes(typestore().serialize_cdr(message, message.__msgtype__))
+
+
 def _overwritten(bag: Path) -> None:
     data = (bag / f"{bag.name}.db3").read_bytes()
     (bag / f"{bag.name}.db3").write_bytes(b"\0" * 100 + data[100:])  # no SQLite header
@@ -170,6 +176,9 @@ def _overwritten(bag: Path) -> None:
                                                pointcloud2(driver_points(1), 1, data=np.zeros(100, np.uint8))]}),
      "{bag}: topic /points, message 1: data holds 100 bytes for height 2 x width 3 points of 32 bytes in rows of "
      "104 bytes (208 bytes): the message is truncated or its sizes are wrong"),
+    (lambda path: write_bag(path, {"/points": [pointcloud2(driver_points(0)), _serialised(driver_points(1))[:60]]}),
+     "{bag}: topic /points, message 1: cannot be decoded as a PointCloud2 ({why}): the bag is truncated or damaged: "
+     "record it again, or repair it (`ros2 bag reindex` for a rosbag2 folder, `mcap recover` for an .mcap file)"),
     (lambda path: _cut_off(driver_bag(path, 3)) or path, DAMAGED),  # why: the library's words
     (lambda path: _overwritten(driver_bag(path, 3, "sqlite3")) or path, DAMAGED),
 ])

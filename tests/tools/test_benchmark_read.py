@@ -19,9 +19,11 @@ def test_a_small_run_compares_bags_with_the_kitti_layout(tmp_path, monkeypatch, 
     assert done.value.code == 0
     rows = json.loads(output.read_text())["rows"]
     assert [row["source"] for row in rows] == ["KITTI .bin + time_offset/", "rosbag2, mcap", "rosbag2, sqlite3",
+                                               "rosbag2, mcap: read once, not listed (floor)",
+                                               "rosbag2, sqlite3: read once, not listed (floor)",
                                                "its frames as KITTI .bin + time_offset/",
                                                ".bfpc (the bundled Cube 1 recording)"]
     assert all(row["ms_per_frame"] > 0 and row["peak_mb"] > 0 for row in rows)
-    assert [row["points"] for row in rows[:3]] == [600] * 3 and rows[3]["points"] == rows[4]["points"] == sum(
+    assert [row["points"] for row in rows[:5]] == [600] * 5 and rows[5]["points"] == rows[6]["points"] == sum(
         frame.returned.sum() for frame in real_bfpc.frames)  # strongest returns
     assert "| rosbag2, mcap |" in capsys.readouterr().out
