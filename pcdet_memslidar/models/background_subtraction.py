@@ -3,7 +3,7 @@ would build it, under the same interface as the learned detectors (MODEL.NAME, b
 
     points with background_depth (the site's background model, geometry.background)
     -> foreground: background_depth > 0 (nearer than the background by more than its margin)
-    -> clusters in bird's-eye view: points closer than CLUSTER_RADIUS [m] join (connected components)
+    -> clusters in bird's-eye view: points at most CLUSTER_RADIUS [m] apart join (connected components)
     -> person-size filter: at least MIN_POINTS points, top of the cluster within HEIGHT_RANGE [m], its longest
        horizontal extent at most MAX_LENGTH [m]
     -> a box per cluster: BOX_SIZE [m] long and wide, from the floor to the cluster's top, at the cluster's mean,
@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from torch import nn
 
@@ -28,6 +26,7 @@ from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.geometry.box_from_points import fit_boxes_to_points
 from pcdet_memslidar.models.post_processing import box_from_points
 from pcdet_memslidar.policy import ExecutionPolicy
+from pcdet_memslidar.utils.compiled import kernel
 
 SETTINGS = {"CLUSTER_RADIUS": 0.25, "MIN_POINTS": 8, "HEIGHT_RANGE": [0.8, 2.3], "MAX_LENGTH": 1.2,
             "BOX_SIZE": [0.8, 0.6]}  # defaults of MODEL.BACKGROUND_SUBTRACTION
@@ -49,10 +48,38 @@ def settings_of(model_cfg) -> dict:
 
 
 def clusters(xy: np.ndarray, radius: float) -> np.ndarray:
-    """(N,) cluster index of (N, 2) points [m]: points closer than `radius` [m] share one (connected components)."""
-    pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy)))
-    return connected_components(graph, directed=False)[1]
+    """(N,) cluster index of (N, 2) points [m]: points at most `radius` [m] apart share one (connected components),
+    numbered in the order of each cluster's first point."""
+    return _components(len(xy), cKDTree(xy).query_pairs(radius, output_type="ndarray"))
+
+
+@kernel
+def _components(count: int, pairs: np.ndarray) -> np.ndarray:
+    """(count,) component of each node of the undirected graph with the edges `pairs` (P, 2), numbered in the order
+    of each component's first node: union-find, every set rooted at its smallest node."""
+    parent = np.arange(count)
+    for k in range(len(pairs)):
+        a, b = _root(parent, pairs[k, 0]), _root(parent, pairs[k, 1])
+        parent[max(a, b)] = min(a, b)
+    label = np.empty(count, np.int64)
+    found = 0
+    for node in range(count):  # a root comes before the rest of its set
+        root = _root(parent, node)
+        if root == node:
+            label[node] = found
+            found += 1
+        else:
+            label[node] = label[root]
+    return label
+
+
+@kernel(inline="always")
+def _root(parent: np.ndarray, node: int) -> int:
+    """The root of `node`'s set in the forest `parent`, halving the path on the way."""
+    while parent[node] != node:
+        parent[node] = parent[parent[node]]
+        node = parent[node]
+    return node
 
 
 def person_clusters(points: np.ndarray, settings: dict, label: np.ndarray | None = None

@@ -4,6 +4,9 @@ import numpy as np
 import pytest
 import torch
 from easydict import EasyDict
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from pcdet_memslidar.errors import ConfigError
 from pcdet_memslidar.models import build_network, is_learned
@@ -25,6 +28,21 @@ def column(x: float, y: float, top: float, count: int, width: float = 0.3) -> np
 def test_points_closer_than_the_radius_join_one_cluster_and_chains_join_too():
     xy = np.array([[0.0, 0.0], [0.2, 0.0], [0.4, 0.0], [1.0, 0.0], [5.0, 5.0]])
     assert clusters(xy, 0.25).tolist() == [0, 0, 0, 1, 2]
+    assert clusters(np.array([[0.0, 0.0], [0.5, 0.0], [0.75, 0.0]]), 0.25).tolist() == [0, 1, 1]  # 0.25 apart: join
+    assert clusters(np.zeros((0, 2)), 0.25).tolist() == []
+
+
+def test_clusters_are_scipys_connected_components_of_the_same_pairs():
+    """The compiled union-find numbers clusters as scipy's connected_components does (by their first point), on
+    random clouds with points on a 0.05 m lattice (many pairs exactly at the radius) and without."""
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        xy = rng.uniform(0, rng.uniform(0.5, 8), (int(rng.integers(1, 300)), 2))
+        xy = np.round(xy * 20) / 20 if trial % 2 else xy
+        for radius in (0.05, 0.1, 0.25):
+            pairs = cKDTree(xy).query_pairs(radius, output_type="ndarray")
+            graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy)))
+            np.testing.assert_array_equal(clusters(xy, radius), connected_components(graph, directed=False)[1])
 
 
 def test_a_person_sized_cluster_gives_one_box_from_the_floor_to_its_top_and_the_score_of_its_count():
