@@ -298,14 +298,15 @@ def machine_line(environment: dict) -> str:
 
 def wall_time(results: dict) -> str:
     """'24.8 min, 1-min load average 1.1 at the end': a run's wall time and how busy the machine was, and how many
-    of its trainings were read back from earlier calls (whose time it does not include)."""
+    of its trainings (a reproduction's runs, a site's learned detectors: results['read_back']) were read back from
+    earlier calls (whose time it does not include)."""
     load = results["environment"]["machine"].get("load_average_1min")
-    runs = [run for entry in results.get("models", {}).values() for run in entry["runs"]]
-    reused = sum(bool(run.get("read_back")) for run in runs)
+    read_back = ([bool(run.get("read_back")) for entry in results.get("models", {}).values() for run in entry["runs"]]
+                 or list(results.get("read_back", {}).values()))
     return (f"{results['wall_seconds'] / 60:.1f} min" + ("" if load is None else
                                                           f", 1-min load average {load:.1f} at the end")
-            + (f" ({reused} of {len(runs)} trainings read back from earlier calls in its --out, their time not "
-               "included)" if reused else ""))
+            + (f" ({sum(read_back)} of {len(read_back)} trainings read back from earlier calls in its --out, their "
+               "time not included)" if any(read_back) else ""))
 
 
 def run_header(results: dict) -> str:

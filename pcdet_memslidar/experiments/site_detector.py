@@ -375,6 +375,7 @@ def train_site(site_file: Path, out: Path, plan: SitePlan, profile: str = "quick
                "classical": {"settings": classical, "trials": trials},
                "scores": scores, "curves": {d: runs[d]["curve"] for d in detectors},
                "ms_per_frame": {d: runs[d]["metrics"]["ms_per_frame"] for d in detectors},
+               "read_back": {job["model"]: bool(runs[job["model"]].get("read_back")) for job in learned},
                "false_alarms": alarms, "min_score": TRACKER_MIN_SCORE, "frame_period_s": period}
     shown = FIGURE_DETECTOR if FIGURE_DETECTOR in scores else detectors[0]
     with clock("figures"):  # 6.

@@ -79,7 +79,7 @@ def render_site_report(results: dict) -> str:
     background, classical = results["background_model"], results["classical"]
     lines = [
         f"# Site detectors: {results['site']}", "",
-        f"{run_header(results)}; profile {results['profile']}; wall time {results['wall_seconds'] / 60:.1f} min.", "",
+        f"{run_header(results)}; profile {results['profile']}; wall time {wall_time(results)}.", "",
         f"Background recording: `{results['background']}`; frames {results['held_out_frames'][0]} to "
         f"{results['held_out_frames'][1] - 1} held out (never trained on, nor in the background model). Mount "
         f"{results['mount']}. Grid (POINT_CLOUD_RANGE) {results['point_cloud_range']}. Background model: "

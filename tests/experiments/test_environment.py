@@ -36,3 +36,7 @@ def test_the_wall_time_says_which_trainings_it_leaves_out():
     results = {"wall_seconds": 324.0, "environment": {"machine": {}}, "models": runs}
     assert wall_time(results) == ("5.4 min (1 of 4 trainings read back from earlier calls in its --out, their time "
                                   "not included)")
+    site = {"wall_seconds": 60.0, "environment": {"machine": {}}, "read_back": {"second": True, "background2": True}}
+    assert wall_time(site) == ("1.0 min (2 of 2 trainings read back from earlier calls in its --out, their time not "
+                               "included)")
+    assert wall_time({**site, "read_back": {"second": False}}) == "1.0 min"
